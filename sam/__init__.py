@@ -1,0 +1,34 @@
+"""sam: the shared discrete-time model of the Single Axis Mock-up (SAM).
+
+Nurmi & Mattila (2011), Section 2: a servo valve, an asymmetric cylinder, a boom
+with loads, LuGre friction and leakage faults, advanced by forward Euler
+(Eq. (22)). One step function, :func:`euler_step`, serves the batch simulator,
+the global sensitivity analysis and the Unscented Kalman Filter.
+
+Public face:
+
+* parameters: :class:`Plant` and its groups, :func:`load_plant`, the flat
+  vector layout :data:`P` / :data:`PARAM_NAMES`;
+* the model: :data:`S` (state layout), :func:`step_batch`, :func:`rhs`;
+* simulation: :func:`simulate_batch`, :func:`initial_state`, :func:`run_scenario`;
+* recordings: :class:`Recording`, :func:`read_recording`, :func:`write_recording`.
+"""
+
+from .constants import DT_DEFAULT, LEAK_REFERENCE_DP, LPM
+from .dynamics import D, N_STATES, S, derive, euler_step, rhs, step_batch
+from .errors import UserError
+from .params import (
+    P, PARAM_NAMES, Boom, Cylinder, Disturbances, Effects, Faults, Fluid, Friction, Plant,
+    Supply, Valve,
+)
+from .plant import default_plant_path, load_plant
+from .recording import Recording, RecordingError, read_recording, write_recording
+from .simulate import BatchResult, initial_state, simulate_batch
+
+__all__ = [
+    "DT_DEFAULT", "LEAK_REFERENCE_DP", "LPM", "D", "N_STATES", "S", "derive", "euler_step",
+    "rhs", "step_batch", "UserError", "P", "PARAM_NAMES", "Boom", "Cylinder", "Disturbances",
+    "Effects", "Faults", "Fluid", "Friction", "Plant", "Supply", "Valve", "default_plant_path",
+    "load_plant", "Recording", "RecordingError", "read_recording", "write_recording",
+    "BatchResult", "initial_state", "simulate_batch",
+]

@@ -1,0 +1,218 @@
+"""The model's state, right-hand side (Eq. (19)) and forward-Euler step (Eq. (22)).
+
+This module is the one place where the physics is assembled. The batch
+simulator, the global sensitivity analysis and the Unscented Kalman Filter all
+advance the model through :func:`euler_step`; nothing else writes an equation.
+
+State vector, Eq. (18), indexed by :data:`S`::
+
+    [p_A, p_B, x_s, dx_s/dt, x, v, z]
+     Pa   Pa   1    1/s      m  m/s m
+
+Parameters are the flat vector of :mod:`sam.params`, indexed by :data:`P`.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+import numba
+import numpy as np
+
+from .constants import P_CAVITATION
+from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, stribeck
+from .geometry import (
+    cos_joint_angle, load_torque_cs, piston_position, reduced_mass, torque_arm_cs, total_inertia,
+)
+from .hydraulics import fault_leakages, flow_coefficient, pressure_rate, valve_flows
+from .params import P
+
+jit = numba.njit(cache=True)
+# The per-step functions are inlined into their callers' loops: a numba call that
+# passes arrays costs reference-count traffic that doubled the time of a step.
+jit_inline = numba.njit(cache=True, inline="always")
+
+
+class S(IntEnum):
+    """Index of each state in the state vector, Eq. (18)."""
+
+    p_A = 0
+    p_B = 1
+    x_s = 2
+    dx_s = 3
+    x = 4
+    v = 5
+    z = 6
+
+
+N_STATES = len(S)
+
+#: Bits of the flag word returned by :func:`euler_step`.
+FLAG_CAVITATION = 1  #: a chamber pressure was clamped at the cavitation floor
+
+
+class D(IntEnum):
+    """Index of each per-run constant derived from the parameters (see :func:`derive`)."""
+
+    K_PA = 0  #: m^3/(s Pa^0.5), Eq. (12)
+    K_AT = 1
+    K_PB = 2
+    K_BT = 3
+    A_A = 4  #: m^2
+    A_B = 5  #: m^2
+    cos_alpha = 6
+    sin_alpha = 7
+    x_end = 8  #: m, extension end stop
+    J_tot = 9  #: kg m^2, Eq. (16)
+    sigma_1_r = 10  #: N s, sigma_1 times the torque arm r (sigma_1 = sigma_1_r / r)
+
+
+N_DERIVED = len(D)
+
+#: Parameters that :func:`derive` reads: when one of them varies in time the
+#: constants are derived again at every step.
+DERIVE_INPUTS = frozenset({
+    "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT", "dp_N_PA", "dp_N_AT", "dp_N_PB", "dp_N_BT",
+    "D_piston", "D_rod", "x_max", "alpha", "theta_max", "L_1", "L_2", "L_3",
+    "m_B", "m_L", "m_R", "L_B", "L", "sigma_0",
+})
+
+
+@jit
+def areas(D_piston, D_rod):
+    """Piston and annulus areas (A_A, A_B) [m^2] from the diameters (Appendix 2)."""
+    A_A = np.pi * D_piston**2 / 4.0
+    return A_A, A_A - np.pi * D_rod**2 / 4.0
+
+
+@jit
+def derive(p, d):
+    """Fill ``d`` (len(D),) with the constants of parameter vector ``p``.
+
+    They hold for a whole run (or until a parameter they depend on changes), so
+    the square roots and trigonometry here are not repeated at every step.
+    """
+    d[D.K_PA] = flow_coefficient(p[P.Q_N_PA], p[P.dp_N_PA])
+    d[D.K_AT] = flow_coefficient(p[P.Q_N_AT], p[P.dp_N_AT])
+    d[D.K_PB] = flow_coefficient(p[P.Q_N_PB], p[P.dp_N_PB])
+    d[D.K_BT] = flow_coefficient(p[P.Q_N_BT], p[P.dp_N_BT])
+    d[D.A_A], d[D.A_B] = areas(p[P.D_piston], p[P.D_rod])
+    d[D.cos_alpha] = np.cos(p[P.alpha])
+    d[D.sin_alpha] = np.sin(p[P.alpha])
+    x_joint = piston_position(p[P.theta_max], p[P.L_1], p[P.L_2], p[P.L_3])
+    d[D.x_end] = min(p[P.x_max], x_joint)
+    d[D.J_tot] = total_inertia(p[P.m_B], p[P.L_B], p[P.m_L], p[P.m_R], p[P.L])
+    # sigma_1 = 2 sqrt(sigma_0 J_tot / r^2) = bristle_damping(sigma_0, J_tot) / r
+    d[D.sigma_1_r] = bristle_damping(p[P.sigma_0], d[D.J_tot])
+
+
+@jit_inline
+def rhs(s, u, p, d, ds):
+    """Eq. (19): write ds/dt of state ``s`` (7,) under control ``u`` [V] into ``ds`` (7,).
+
+    ``p`` is one parameter vector (len(P),) and ``d`` its :func:`derive`d
+    constants. Friction is LuGre (Eq. (17)); the load force is Eq. (21) plus the
+    disturbance force F_d; leak faults are Eqs. (41)-(43); the optional effects
+    of :class:`sam.params.Effects` enter through the hydraulics and friction
+    functions.
+    """
+    p_A, p_B, x_s, dx_s, x, v, z = s[0], s[1], s[2], s[3], s[4], s[5], s[6]
+    A_A, A_B = d[D.A_A], d[D.A_B]
+
+    # Hydraulics, Eqs. (8)-(14), (41)-(43)
+    Q_A, Q_B = valve_flows(
+        x_s, p_A, p_B, p[P.offset], p[P.p_S], p[P.p_T],
+        d[D.K_PA], d[D.K_AT], d[D.K_PB], d[D.K_BT],
+        p[P.K_leak_PA], p[P.K_leak_AT], p[P.K_leak_PB], p[P.K_leak_BT], p[P.leak_band],
+        p[P.lap], p[P.R_supply], p[P.Q_sat],
+    )
+    Q_int, Q_extA, Q_extB = fault_leakages(p_A, p_B, p[P.p_T], p[P.K_int], p[P.K_extA], p[P.K_extB])
+    Q_bypass = p[P.K_bypass] * (p_A - p_B)
+    Q_netA = Q_A - Q_int - Q_extA - Q_bypass + p[P.Q_dA] - A_A * v
+    Q_netB = Q_B + Q_int - Q_extB + Q_bypass + p[P.Q_dB] + A_B * v
+    V_A = p[P.V_0A] + A_A * x
+    V_B = p[P.V_0B] + A_B * (p[P.x_max] - x)
+    ds[0] = pressure_rate(Q_netA, V_A, p_A, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
+    ds[1] = pressure_rate(Q_netB, V_B, p_B, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
+
+    # Spool, Eq. (15), with the dimensionally consistent K omega_n^2 u
+    w = p[P.omega_n]
+    ds[2] = dx_s
+    ds[3] = p[P.K_u] * w * w * u - 2.0 * w * p[P.zeta] * dx_s - w * w * x_s
+
+    # Boom seen at the piston, Eqs. (5), (16), (20), (21)
+    cos_theta = cos_joint_angle(x, p[P.L_1], p[P.L_2], p[P.L_3])
+    sin_theta = np.sqrt(1.0 - cos_theta * cos_theta)
+    r = torque_arm_cs(x, sin_theta, p[P.L_1], p[P.L_2], p[P.L_3])
+    m_red = reduced_mass(d[D.J_tot], r)
+    tau = load_torque_cs(
+        cos_theta, sin_theta, d[D.cos_alpha], d[D.sin_alpha], p[P.m_B], p[P.r_B], p[P.m_L], p[P.m_R], p[P.L]
+    )
+    F_ext = tau / r + p[P.F_d]
+
+    # LuGre friction, Eq. (17)
+    g = stribeck(
+        v,
+        seal_loaded(p[P.F_C], p_A, p_B, p[P.k_fric_p]),
+        seal_loaded(p[P.F_S], p_A, p_B, p[P.k_fric_p]),
+        p[P.v_s],
+    )
+    dz = bristle_rate(v, z, g, p[P.sigma_0])
+    F_mu = lugre_force(v, z, dz, p[P.sigma_0], d[D.sigma_1_r] / r, p[P.b])
+
+    ds[4] = v
+    ds[5] = (p_A * A_A - p_B * A_B - F_mu - F_ext) / m_red
+    ds[6] = dz
+
+
+@jit_inline
+def euler_step(s, u, p, d, dt, ds):
+    """Eq. (22): advance state ``s`` (7,) in place by one forward-Euler step of ``dt`` [s].
+
+    ``p`` is the parameter vector, ``d`` its :func:`derive`d constants and
+    ``ds`` (7,) scratch space. Afterwards the state is kept physical:
+
+    * pressures are clamped at the cavitation floor :data:`P_CAVITATION`
+      (flagged with :data:`FLAG_CAVITATION`, since Eqs. (8)-(9) no longer hold);
+    * the piston stops at its end stops, x in [0, stroke_end(p)], where the
+      velocity into the stop is zeroed (an inelastic stop).
+
+    Returns the flag word (0 when nothing was clamped but the end stops).
+    """
+    rhs(s, u, p, d, ds)
+    for j in range(N_STATES):
+        s[j] += dt * ds[j]
+    flags = 0
+    if s[0] < P_CAVITATION:
+        s[0] = P_CAVITATION
+        flags |= FLAG_CAVITATION
+    if s[1] < P_CAVITATION:
+        s[1] = P_CAVITATION
+        flags |= FLAG_CAVITATION
+    if s[4] <= 0.0:
+        s[4] = 0.0
+        if s[5] < 0.0:
+            s[5] = 0.0
+    elif s[4] >= d[D.x_end]:
+        s[4] = d[D.x_end]
+        if s[5] > 0.0:
+            s[5] = 0.0
+    return flags
+
+
+@jit
+def step_batch(states, u, params, dt):
+    """Advance a batch of states one Euler step: the filter's process model.
+
+    states (n, 7), u (n,) [V], params (n, len(P)) -> new states (n, 7), flags (n,).
+    The input arrays are not modified.
+    """
+    n = states.shape[0]
+    out = states.copy()
+    flags = np.zeros(n, dtype=np.int64)
+    ds = np.empty(N_STATES)
+    d = np.empty(N_DERIVED)
+    for i in range(n):
+        derive(params[i], d)
+        flags[i] = euler_step(out[i], u[i], params[i], d, dt, ds)
+    return out, flags

@@ -1,0 +1,43 @@
+"""LuGre friction, Eq. (17) (Canudas de Wit et al., 1995).
+
+Eq. (17) in the paper is garbled in print; this is the standard LuGre model it
+cites, with the paper's choice sigma_1 = 2 sqrt(sigma_0 m_reduced) (critical
+damping of the bristles against the moving mass).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+jit = numba.njit(cache=True)
+
+
+@jit
+def stribeck(v, F_C, F_S, v_s):
+    """g(v) = F_C + (F_S - F_C) exp(-(v/v_s)^2) [N]: the steady-state friction magnitude."""
+    return F_C + (F_S - F_C) * np.exp(-((v / v_s) ** 2))
+
+
+@jit
+def seal_loaded(F, p_A, p_B, k_fric_p):
+    """A friction level F [N] raised by the chamber pressures on the seals (an optional effect)."""
+    return F + k_fric_p * np.maximum(p_A + p_B, 0.0)
+
+
+@jit
+def bristle_rate(v, z, g, sigma_0):
+    """dz/dt [m/s] of the bristle deflection z: v - sigma_0 |v| z / g(v) (Eq. (19), 7th row)."""
+    return v - sigma_0 * np.abs(v) * z / g
+
+
+@jit
+def bristle_damping(sigma_0, m_reduced):
+    """The paper's sigma_1 = 2 sqrt(sigma_0 m_reduced) [N s/m] (Appendix 2)."""
+    return 2.0 * np.sqrt(sigma_0 * m_reduced)
+
+
+@jit
+def lugre_force(v, z, dz, sigma_0, sigma_1, b):
+    """Eq. (17): friction force [N] opposing motion, sigma_0 z + sigma_1 dz/dt + b v."""
+    return sigma_0 * z + sigma_1 * dz + b * v

@@ -1,0 +1,90 @@
+"""Boom geometry and load, Eqs. (3)-(5), (16), (20)-(21).
+
+The paper's Fig. 3 is lost; docs/model.md reconstructs it. Conventions:
+
+* ``theta`` is the joint angle between the boom-side and base-side cylinder
+  joints as seen from the boom joint (0.728 rad with the cylinder retracted).
+* The boom's elevation (left arm above horizontal) is
+  ``phi = theta + alpha - pi/2``: the boom is horizontal at ``theta = pi/2 - alpha``.
+* The left load m_L is raised by extension; the right load m_R is lowered.
+* The boom's centre of gravity lies r_B below the joint (a pendulum, so its
+  torque tau_B restores the boom to horizontal).
+
+Every function here is compiled by numba and accepts scalars or numpy arrays, so
+the same source serves numpy callers (vectorised) and the compiled model kernel.
+The kernel works with cos/sin of the angles rather than the angles themselves:
+no trigonometric call is needed per time step.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .constants import G
+
+jit = numba.njit(cache=True)
+
+
+@jit
+def piston_position(theta, L_1, L_2, L_3):
+    """Eq. (3): piston position x [m] from the joint angle theta [rad]."""
+    return np.sqrt(L_1**2 + L_2**2 - 2.0 * L_1 * L_2 * np.cos(theta)) - L_3
+
+
+@jit
+def cos_joint_angle(x, L_1, L_2, L_3):
+    """cos(theta) from the piston position x [m]: Eq. (3) solved for theta."""
+    return (L_1**2 + L_2**2 - (x + L_3) ** 2) / (2.0 * L_1 * L_2)
+
+
+@jit
+def joint_angle(x, L_1, L_2, L_3):
+    """Inverse of Eq. (3): joint angle theta [rad] from the piston position x [m]."""
+    return np.arccos(cos_joint_angle(x, L_1, L_2, L_3))
+
+
+@jit
+def torque_arm_cs(x, sin_theta, L_1, L_2, L_3):
+    """Eq. (5): r [m], given the piston position x [m] and sin(theta) at that x."""
+    return L_1 * L_2 * sin_theta / (x + L_3)
+
+
+@jit
+def torque_arm(x, L_1, L_2, L_3):
+    """Eq. (5): torque arm r = dx/dtheta [m] at piston position x [m]."""
+    c = cos_joint_angle(x, L_1, L_2, L_3)
+    return torque_arm_cs(x, np.sqrt(1.0 - c * c), L_1, L_2, L_3)
+
+
+@jit
+def total_inertia(m_B, L_B, m_L, m_R, L):
+    """Eq. (16), denominator: J_tot [kg m^2] about the boom joint."""
+    return m_B * L_B**2 / 12.0 + (m_L + m_R) * L**2
+
+
+@jit
+def reduced_mass(J_tot, r):
+    """Eq. (20): the boom's inertia seen at the piston, m_reduced [kg]."""
+    return J_tot / (r * r)
+
+
+@jit
+def load_torque_cs(cos_theta, sin_theta, cos_alpha, sin_alpha, m_B, r_B, m_L, m_R, L):
+    """Net gravity torque [N m] opposing extension, tau_mL - tau_mR + tau_B (Eqs. (16), (21)).
+
+    With phi = theta + alpha - pi/2: cos(phi) = sin(theta + alpha) and
+    sin(phi) = -cos(theta + alpha), expanded so that no angle is evaluated.
+    """
+    cos_phi = sin_theta * cos_alpha + cos_theta * sin_alpha
+    sin_phi = sin_theta * sin_alpha - cos_theta * cos_alpha
+    return (m_L - m_R) * G * L * cos_phi + m_B * G * r_B * sin_phi
+
+
+@jit
+def external_force(x, L_1, L_2, L_3, alpha, m_B, r_B, m_L, m_R, L):
+    """Eq. (21): load force F_ext [N] on the piston at position x [m], positive opposing extension."""
+    c = cos_joint_angle(x, L_1, L_2, L_3)
+    s = np.sqrt(1.0 - c * c)
+    tau = load_torque_cs(c, s, np.cos(alpha), np.sin(alpha), m_B, r_B, m_L, m_R, L)
+    return tau / torque_arm_cs(x, s, L_1, L_2, L_3)

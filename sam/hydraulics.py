@@ -1,0 +1,155 @@
+"""Valve, leakage and chamber equations, Eqs. (8)-(14) and (41)-(43).
+
+Each function is compiled by numba for scalar arguments: the model kernel calls
+them per run and per step, and skips the square roots of closed edges and absent
+leaks. Flows are in m^3/s, positive into the chamber; pressures in Pa (gauge).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .constants import KAPPA_AIR, P_ATM, P_CAVITATION
+
+jit = numba.njit(cache=True)
+
+
+@jit
+def ssqrt(dp):
+    """Sign-preserving square root, sgn(dp) sqrt(|dp|): turbulent flow in either direction."""
+    return math.copysign(math.sqrt(abs(dp)), dp)
+
+
+@jit
+def flow_coefficient(Q_N, dp_N):
+    """Eq. (12): K_v = Q_N / sqrt(dp_N) [m^3/(s Pa^0.5)]."""
+    return Q_N / math.sqrt(dp_N)
+
+
+@jit
+def orifice_flow(K_v, opening, dp, R_supply, Q_sat):
+    """Turbulent flow [m^3/s] through one metering edge, the building block of Eqs. (10)-(11).
+
+    ``q = K_v * opening * ssqrt(dp)``, with two optional effects:
+
+    * supply droop: the upstream pressure falls by ``R_supply * q``. Solving
+      ``q = k sqrt(dp - R q)`` for q gives ``q = k (sqrt((R k)^2 + 4 dp) - R k) / 2``
+      (k = K_v * opening), exact and explicit, which reduces to ``k sqrt(dp)`` at R = 0.
+      For notches draining to tank pass ``R_supply = 0``.
+    * flow saturation: ``|q| <= Q_sat`` (``inf`` disables it).
+    """
+    k = K_v * opening
+    if k == 0.0:  # closed edge: most of the time for two of the four
+        return 0.0
+    Rk = R_supply * k
+    q = math.copysign(k * 0.5 * (math.sqrt(Rk * Rk + 4.0 * abs(dp)) - Rk), dp)
+    return math.copysign(min(abs(q), Q_sat), q)
+
+
+@jit
+def edge_openings(x_s, offset, lap):
+    """Openings (fraction of full travel) of the edges P->A/B->T and P->B/A->T.
+
+    Eqs. (10)-(11) open P->A and B->T by ``x_s + offset`` when positive and P->B
+    and A->T by ``-(x_s + offset)`` when negative. A lap shifts both edges: an
+    overlap (lap > 0) is a deadband; an underlap (lap < 0) opens all four edges
+    a little around null. At lap = 0 this is exactly the paper's valve.
+    """
+    x_o = x_s + offset
+    return max(x_o - lap, 0.0), max(-x_o - lap, 0.0)
+
+
+@jit
+def null_leakage(x_s, offset, p_chamber, p_S, p_T, K_leak_in, K_leak_out, leak_band):
+    """Eqs. (13)-(14): laminar null leakage [m^3/s] into a chamber near spool centre.
+
+    The band is applied to the spool's position relative to the lands,
+    ``x_s + offset`` (the paper writes ``|x_s|``; with offset = 0 they agree).
+    """
+    q = K_leak_in * (p_S - p_chamber) - K_leak_out * (p_chamber - p_T)
+    return q if abs(x_s + offset) < leak_band else 0.0
+
+
+@jit
+def valve_flows(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
+                K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, R_supply, Q_sat):
+    """Eqs. (10)-(11): valve flows (Q_A, Q_B) [m^3/s] into chambers A and B."""
+    a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap)
+    q_PA = orifice_flow(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat)
+    q_AT = orifice_flow(K_AT, a_PB_AT, p_A - p_T, 0.0, Q_sat)
+    q_PB = orifice_flow(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat)
+    q_BT = orifice_flow(K_BT, a_PA_BT, p_B - p_T, 0.0, Q_sat)
+    Q_A = q_PA - q_AT + null_leakage(x_s, offset, p_A, p_S, p_T, K_leak_PA, K_leak_AT, leak_band)
+    Q_B = q_PB - q_BT + null_leakage(x_s, offset, p_B, p_S, p_T, K_leak_PB, K_leak_BT, leak_band)
+    return Q_A, Q_B
+
+
+@jit
+def supply_flow(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat):
+    """Flow drawn from the supply through P->A and P->B [m^3/s] (for the droop of p_S)."""
+    a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap)
+    q_PA = orifice_flow(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat)
+    q_PB = orifice_flow(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat)
+    return q_PA + q_PB
+
+
+@jit
+def fault_leakages(p_A, p_B, p_T, K_int, K_extA, K_extB):
+    """Eqs. (41)-(43): turbulent fault leakages [m^3/s].
+
+    Returns (Q_int from A to B, Q_extA out of A, Q_extB out of B). The paper
+    assumes p_T = 0 and positive pressure differences; the sign-preserving
+    square root keeps the flows defined (and reversing) when p_A < p_B or a
+    pressure is at or below tank pressure.
+    """
+    Q_int = K_int * ssqrt(p_A - p_B) if K_int != 0.0 else 0.0
+    Q_extA = K_extA * ssqrt(p_A - p_T) if K_extA != 0.0 else 0.0
+    Q_extB = K_extB * ssqrt(p_B - p_T) if K_extB != 0.0 else 0.0
+    return Q_int, Q_extA, Q_extB
+
+
+@jit
+def effective_bulk_modulus(p, B_eff, air_fraction):
+    """Bulk modulus [Pa] of oil with entrained free air, at gauge pressure p [Pa].
+
+    ``1/B = 1/B_eff + eps(p) / (kappa p_abs)``, with the free-air fraction
+    ``eps(p) = air_fraction (p_atm / p_abs)^(1/kappa)`` compressed polytropically.
+    At air_fraction = 0 it is the paper's constant B_eff. The stiffness falls
+    steeply at low pressure: the hallmark of entrained air.
+    """
+    if air_fraction == 0.0:  # the common case; skips two powers per chamber per step
+        return B_eff
+    p_abs = max(p + P_ATM, P_CAVITATION + P_ATM)
+    eps = air_fraction * (P_ATM / p_abs) ** (1.0 / KAPPA_AIR)
+    return 1.0 / (1.0 / B_eff + eps / (KAPPA_AIR * p_abs))
+
+
+@jit
+def pressure_rate(Q_net, V, p, B_eff, air_fraction, C_hose):
+    """Eqs. (8)-(9): dp/dt [Pa/s] of a chamber of volume V [m^3] with net inflow Q_net [m^3/s].
+
+    ``Q_net`` already includes the piston's displacement flow. The chamber's
+    capacitance is ``V / B`` plus an optional hose compliance C_hose [m^3/Pa].
+    """
+    B = effective_bulk_modulus(p, B_eff, air_fraction)
+    return Q_net / (V / B + C_hose)
+
+
+def supply_flow_array(x_s, p_A, p_B, p):
+    """:func:`supply_flow` over trajectories (n,), for one parameter vector ``p``."""
+    from .params import P
+
+    K_PA = flow_coefficient(p[P.Q_N_PA], p[P.dp_N_PA])
+    K_PB = flow_coefficient(p[P.Q_N_PB], p[P.dp_N_PB])
+    return _supply_flow_loop(x_s, p_A, p_B, p[P.offset], p[P.p_S], K_PA, K_PB, p[P.lap], p[P.R_supply], p[P.Q_sat])
+
+
+@jit
+def _supply_flow_loop(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat):
+    out = np.empty(x_s.shape[0])
+    for k in range(x_s.shape[0]):
+        out[k] = supply_flow(x_s[k], p_A[k], p_B[k], offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat)
+    return out

@@ -1,0 +1,95 @@
+"""The measurement model: what the test bed's sensors report of the model's states.
+
+Appendix 1: two pressure transmitters (0-25 MPa) on chambers A and B, and an
+angle encoder of 0.007 deg/pulse on the boom joint. The piston position x is
+computed from the quantised angle through Eq. (3), as a logger would.
+
+Optional sensor effects (each seeded): white pressure noise (default 20 kPa),
+encoder quantisation, a first-order lag and a pure time delay.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from .geometry import joint_angle, piston_position
+from .hydraulics import supply_flow_array
+from .params import P
+
+ENCODER_RESOLUTION_RAD = np.deg2rad(0.007)  #: rad/pulse, Heidenhain 376 886-0B (Appendix 1)
+PRESSURE_SENSOR_RANGE_PA = (0.0, 25e6)  #: Pa, Trafag 8891.74 / Druck PTX 1400 (Appendix 1)
+
+
+@dataclass(frozen=True)
+class Sensors:
+    """Sensor settings for a simulated recording."""
+
+    pressure_noise_Pa: float = 20e3  #: Pa, standard deviation of white noise on p_A, p_B, p_S
+    encoder_quantisation: bool = True  #: quantise theta to the encoder's 0.007 deg/pulse
+    lag_s: float = 0.0  #: s, first-order lag of every measured signal
+    delay_s: float = 0.0  #: s, pure time delay of every measured signal
+    measure_pS: bool = False  #: also record the supply pressure
+    measure_v: bool = False  #: also record the piston velocity
+    measure_xs: bool = False  #: also record the spool position
+
+
+def first_order_lag(y: np.ndarray, dt: float, tau_s: float) -> np.ndarray:
+    """A sensor's first-order lag, ``tau dy_m/dt = y - y_m``, discretised exactly (ZOH); y (n,)."""
+    if tau_s <= 0:
+        return y.copy()
+    a = np.exp(-dt / tau_s)
+    out, _ = lfilter([1 - a], [1, -a], y, zi=[a * y[0]])
+    return out
+
+
+def time_delay(y: np.ndarray, dt: float, delay_s: float) -> np.ndarray:
+    """``y(t - delay)``, holding the first sample before the start; y (n,)."""
+    k = int(round(delay_s / dt))
+    if k <= 0:
+        return y.copy()
+    return np.concatenate([np.full(k, y[0]), y[:-k]])
+
+
+def quantise_angle(theta: np.ndarray) -> np.ndarray:
+    """The encoder's reading: theta [rad] rounded to whole pulses of 0.007 deg."""
+    return np.round(theta / ENCODER_RESOLUTION_RAD) * ENCODER_RESOLUTION_RAD
+
+
+def measure(states: dict[str, np.ndarray], params: np.ndarray, dt: float, sensors: Sensors,
+            rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Sensor signals of one run, named as in recording-format.md.
+
+    Args:
+        states: state name -> (n,) trajectory (from :class:`sam.simulate.BatchResult`), at step ``dt``.
+        params: (len(P),) the run's parameter vector (geometry, supply).
+        sensors: what to measure and how imperfectly.
+        rng: the seeded source of noise.
+    """
+    L = params[P.L_1], params[P.L_2], params[P.L_3]
+    theta = joint_angle(states["x"], *L)
+    if sensors.encoder_quantisation:
+        theta = quantise_angle(theta)
+    signals = {
+        "pA": states["p_A"] + sensors.pressure_noise_Pa * rng.standard_normal(theta.shape),
+        "pB": states["p_B"] + sensors.pressure_noise_Pa * rng.standard_normal(theta.shape),
+        "theta": theta,
+        "x": piston_position(theta, *L),
+    }
+    if sensors.measure_pS:
+        signals["pS"] = supply_pressure(states, params) + sensors.pressure_noise_Pa * rng.standard_normal(theta.shape)
+    if sensors.measure_v:
+        signals["v"] = states["v"].copy()
+    if sensors.measure_xs:
+        signals["xs"] = states["x_s"].copy()
+    return {k: time_delay(first_order_lag(y, dt, sensors.lag_s), dt, sensors.delay_s) for k, y in signals.items()}
+
+
+def supply_pressure(states: dict[str, np.ndarray], params: np.ndarray) -> np.ndarray:
+    """The supply pressure at the valve [Pa]: p_S less the droop R_supply times the flow drawn."""
+    if params[P.R_supply] == 0:
+        return np.full_like(states["p_A"], params[P.p_S])
+    q = supply_flow_array(states["x_s"], states["p_A"], states["p_B"], params)
+    return params[P.p_S] - params[P.R_supply] * q

@@ -1,0 +1,149 @@
+"""Loading and validating plant files (TOML).
+
+A plant file has one table per parameter group (``[valve]``, ``[supply]``,
+``[cylinder]``, ``[fluid]``, ``[friction]``, ``[boom]``, optionally
+``[effects]``), with SI values under the field names of :mod:`sam.params`.
+A user's file needs only the keys it changes: everything else comes from the
+shipped default, ``scenarios/plants/sam.toml`` (Appendix 2 of the paper).
+Values are validated once, here; the model itself does not check them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from .errors import UserError, where
+from .params import (
+    Boom, Cylinder, Effects, Fluid, Friction, Plant, Supply, Valve,
+)
+
+_GROUPS = {
+    "valve": Valve, "supply": Supply, "cylinder": Cylinder, "fluid": Fluid,
+    "friction": Friction, "boom": Boom, "effects": Effects,
+}
+
+#: Parameters that must be strictly positive (areas, volumes, masses, lengths, gains...).
+_POSITIVE = {
+    "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT", "dp_N_PA", "dp_N_AT", "dp_N_PB", "dp_N_BT",
+    "leak_band", "K_u", "omega_n", "zeta", "p_S", "D_piston", "D_rod", "x_max",
+    "V_0A", "V_0B", "B_eff", "F_C", "F_S", "v_s", "sigma_0", "L_1", "L_2", "L_3", "L",
+    "L_B", "m_B", "theta_max", "Q_sat",
+}
+#: Parameters that must be >= 0.
+_NON_NEGATIVE = {
+    "K_leak_PA", "K_leak_AT", "K_leak_PB", "K_leak_BT", "b", "r_B", "m_L", "m_R",
+    "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p", "alpha",
+}
+
+
+def default_plant_path() -> Path:
+    """The shipped plant file of the paper's SAM (Appendix 2)."""
+    return Path(str(resources.files("scenarios") / "plants" / "sam.toml"))
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file, turning every I/O or syntax problem into a one-line UserError."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise UserError(f"{path}: file not found") from None
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise UserError(f"{path}: cannot read TOML: {exc}") from None
+
+
+def load_plant(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Plant:
+    """Load a plant file over the shipped defaults, then validate it.
+
+    Args:
+        path: a user plant TOML; None for the paper's SAM.
+        overrides: further ``{group: {key: value}}`` on top (e.g. a scenario's
+            ``[plant_overrides]``), validated the same way.
+    """
+    table = read_toml(default_plant_path())
+    source = default_plant_path()
+    if path is not None:
+        source = Path(path)
+        _merge(table, read_toml(source), source)
+    if overrides:
+        _merge(table, overrides, source)
+    return plant_from_table(table, source)
+
+
+def _merge(base: dict, extra: dict, source: Path) -> None:
+    for key, value in extra.items():
+        if key == "name":
+            base["name"] = value
+            continue
+        if key not in _GROUPS:
+            raise UserError(f"{where(source, key)}: unknown table; expected one of {sorted(_GROUPS)}")
+        if not isinstance(value, dict):
+            raise UserError(f"{where(source, key)}: expected a table [{key}]")
+        base.setdefault(key, {}).update(value)
+
+
+def plant_from_table(table: dict[str, Any], source: str | Path = "<plant>") -> Plant:
+    """Build and validate a :class:`Plant` from a complete ``{group: {key: value}}`` table."""
+    groups = {}
+    for group, cls in _GROUPS.items():
+        values = dict(table.get(group, {}))
+        known = {f.name for f in dataclasses.fields(cls)}
+        for key in values:
+            if key not in known:
+                hint = _close_match(key, known)
+                raise UserError(f"{where(source, f'{group}.{key}')}: unknown key{hint}")
+        for key, value in values.items():
+            values[key] = _check_value(source, group, key, value)
+        missing = [f.name for f in dataclasses.fields(cls)
+                   if f.name not in values and f.default is dataclasses.MISSING]
+        if missing:
+            raise UserError(f"{where(source, group)}: missing keys {missing}")
+        groups[group] = cls(**values)
+    plant = Plant(name=str(table.get("name", "plant")), **groups)
+    _check_relations(plant, source)
+    return plant
+
+
+def _close_match(key: str, known: set[str]) -> str:
+    import difflib
+
+    match = difflib.get_close_matches(key, sorted(known), n=1)
+    return f" (did you mean '{match[0]}'?)" if match else ""
+
+
+def _check_value(source, group: str, key: str, value: Any) -> float:
+    field = f"{group}.{key}"
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise UserError(f"{where(source, field)}: expected a number in SI units, got {value!r}")
+    value = float(value)
+    if math.isnan(value) or (math.isinf(value) and key != "Q_sat"):
+        raise UserError(f"{where(source, field)}: must be finite, got {value}")
+    if key in _POSITIVE and not value > 0:
+        raise UserError(f"{where(source, field)}: must be > 0, got {value}")
+    if key in _NON_NEGATIVE and value < 0:
+        raise UserError(f"{where(source, field)}: must be >= 0, got {value}")
+    return value
+
+
+def _check_relations(plant: Plant, source) -> None:
+    s, c, f, b, v = plant.supply, plant.cylinder, plant.friction, plant.boom, plant.valve
+    checks = [
+        (s.p_S > s.p_T, "supply.p_S", f"supply pressure {s.p_S} Pa must be above tank pressure {s.p_T} Pa"),
+        (c.D_rod < c.D_piston, "cylinder.D_rod", f"rod diameter {c.D_rod} m must be below piston diameter {c.D_piston} m"),
+        (f.F_S >= f.F_C, "friction.F_S", f"static friction {f.F_S} N must be >= Coulomb friction {f.F_C} N"),
+        (abs(b.L_1 - b.L_2) < b.L_3 < b.L_1 + b.L_2, "boom.L_3",
+         f"L_3 = {b.L_3} m cannot close the triangle with L_1 = {b.L_1} m and L_2 = {b.L_2} m"),
+        (0 < b.theta_max < math.pi, "boom.theta_max", f"must be in (0, pi) rad, got {b.theta_max}"),
+        (abs(v.offset) < 1, "valve.offset", f"must be a fraction of travel in (-1, 1), got {v.offset}"),
+        (plant.effects.air_fraction < 1, "effects.air_fraction", f"must be below 1, got {plant.effects.air_fraction}"),
+        (abs(plant.effects.lap) < 1, "effects.lap", f"must be a fraction of travel in (-1, 1), got {plant.effects.lap}"),
+    ]
+    for ok, field, message in checks:
+        if not ok:
+            raise UserError(f"{where(source, field)}: {message}")

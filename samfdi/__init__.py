@@ -1,0 +1,1 @@
+"""The samfdi command-line application: wires sam, gsa, fdi and discrepancy together."""

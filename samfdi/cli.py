@@ -1,0 +1,59 @@
+"""``samfdi``: the command line.
+
+Each package contributes its commands through an ``add_commands(subparsers)``
+function in its own ``cli`` module; this module only wires them together and
+turns user errors into one line on stderr and a non-zero exit, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import warnings
+
+from sam.errors import UserError
+
+#: Modules that contribute commands, in the order their commands are listed.
+COMMAND_MODULES = ("sam.cli", "gsa.cli", "fdi.cli", "discrepancy.cli", "samfdi.demo")
+
+EXIT_USER_ERROR = 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="samfdi",
+        description="Leak and valve fault detection for a servo-valve-controlled hydraulic cylinder.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:  # a real import error inside the module, not a missing command module
+                raise
+            continue
+        module.add_commands(sub)
+    return parser
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    print(f"samfdi: warning: {message}", file=sys.stderr)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    warnings.showwarning = _show_warning
+    try:
+        return int(args.func(args) or 0)
+    except UserError as exc:
+        print(f"samfdi: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("samfdi: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Shipped data: plant files and scenario/study TOML files (package data)."""

@@ -1,0 +1,254 @@
+"""Physics checks of the shared model: closed forms, conservation, hand calculations.
+
+Each test states the physics it checks. Nothing here checks shapes only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
+
+import sam
+from sam import P, S
+from sam.constants import LPM
+from sam.dynamics import D, N_DERIVED, derive, rhs
+from sam.friction import stribeck
+from sam.geometry import external_force, joint_angle, piston_position, torque_arm
+from sam.hydraulics import valve_flows
+
+PLANT = sam.load_plant()
+DT = 1e-3
+
+
+def derived(p):
+    d = np.empty(N_DERIVED)
+    derive(p, d)
+    return d
+
+
+def run(p, u, seconds, x0=None, **kw):
+    n = int(round(seconds / DT))
+    return sam.simulate_batch(p, np.full(n, u), DT, x0=x0, **kw)
+
+
+def final_state(res):
+    return np.array([res[name][0, -1] for name in S.__members__])
+
+
+def boom_force(p, x):
+    return external_force(x, p[P.L_1], p[P.L_2], p[P.L_3], p[P.alpha], p[P.m_B], p[P.r_B],
+                          p[P.m_L], p[P.m_R], p[P.L])
+
+
+def steady_friction(p, v):
+    """LuGre in steady sliding: sigma_0 z_ss = g(v) sgn(v), plus viscous b v (Eq. (17))."""
+    return np.sign(v) * stribeck(v, p[P.F_C], p[P.F_S], p[P.v_s]) + p[P.b] * v
+
+
+def test_geometry_retracted_angle_and_inverse():
+    """Appendix 2: theta = 0.728 rad with the cylinder retracted (x = 0), Eq. (3) and its inverse."""
+    b = PLANT.boom
+    assert piston_position(0.728, b.L_1, b.L_2, b.L_3) == pytest.approx(0.0, abs=2e-4)
+    x = np.linspace(0.0, 0.4, 9)
+    np.testing.assert_allclose(piston_position(joint_angle(x, b.L_1, b.L_2, b.L_3), b.L_1, b.L_2, b.L_3), x, atol=1e-12)
+
+
+def test_torque_arm_is_derivative_of_position():
+    """Eq. (5) is dx/dtheta of Eq. (3)."""
+    b = PLANT.boom
+    theta, h = 1.2, 1e-6
+    dx = (piston_position(theta + h, b.L_1, b.L_2, b.L_3) - piston_position(theta - h, b.L_1, b.L_2, b.L_3)) / (2 * h)
+    x = piston_position(theta, b.L_1, b.L_2, b.L_3)
+    assert torque_arm(x, b.L_1, b.L_2, b.L_3) == pytest.approx(dx, rel=1e-8)
+
+
+def test_external_force_is_virtual_work_of_gravity():
+    """Eq. (21): F_ext dx = -dE_pot, checked against the boom's potential energy."""
+    b, g = PLANT.boom, 9.81
+
+    def potential(theta):
+        phi = theta + b.alpha - np.pi / 2  # left arm elevation; the boom's CG hangs r_B below the joint
+        return (b.m_L - b.m_R) * g * b.L * np.sin(phi) - b.m_B * g * b.r_B * np.cos(phi)
+
+    theta, h = 1.0, 1e-6
+    x = piston_position(theta, b.L_1, b.L_2, b.L_3)
+    dE_dx = (potential(theta + h) - potential(theta - h)) / (2 * h) / torque_arm(x, b.L_1, b.L_2, b.L_3)
+    assert boom_force(PLANT.vector(), x) == pytest.approx(dE_dx, rel=1e-6)
+
+
+def test_leak_of_table5_upper_bound_is_one_litre_per_minute():
+    """Table 5: K = 5.27e-9 m^3/(s Pa^0.5) passes 1 L/min at 10 MPa (Eqs. (41)-(43))."""
+    from sam.hydraulics import fault_leakages
+
+    _, Q_extA, _ = fault_leakages(10e6, 0.0, 0.0, 0.0, 5.27e-9, 0.0)
+    assert Q_extA / LPM == pytest.approx(1.00, abs=0.005)
+
+
+def test_steady_state_matches_closed_form_eqs_39_40():
+    """Eqs. (39)-(40), friction folded into F_ext, within 1 %.
+
+    Eq. (39) is used with F_ext A_A^2 K_BT^2 (the printed A_A A_B violates the
+    piston's force balance; docs/model.md).
+    """
+    p = PLANT.vector()
+    s = final_state(run(p, 2.5, 3.0))
+    d = derived(p)
+    A_A, A_B, K_PA, K_BT = d[D.A_A], d[D.A_B], d[D.K_PA], d[D.K_BT]
+    p_S, p_T = p[P.p_S], p[P.p_T]
+    F = boom_force(p, s[S.x]) + steady_friction(p, s[S.v])
+    den = A_A**3 * K_BT**2 + A_B**3 * K_PA**2
+    p_A = (F * A_A**2 * K_BT**2 + A_B**3 * K_PA**2 * p_S + A_A**2 * A_B * K_BT**2 * p_T) / den
+    p_B = (-F * K_PA**2 * A_B**2 + A_A * A_B**2 * K_PA**2 * p_S + A_A**3 * K_BT**2 * p_T) / den
+    assert s[S.p_A] == pytest.approx(p_A, rel=0.01)
+    assert s[S.p_B] == pytest.approx(p_B, rel=0.01)
+    assert s[S.p_A] * A_A - s[S.p_B] * A_B == pytest.approx(F, rel=0.01)
+
+
+@pytest.mark.parametrize("u", [2.5, -2.5, 6.0])
+def test_volume_flows_balance_in_steady_motion(u):
+    """In steady motion the valve flows fill and empty the chambers: A_A v = Q_A, A_B v = -Q_B (1 %)."""
+    p = PLANT.vector()
+    x0 = 0.0 if u > 0 else 0.3
+    s = final_state(run(p, u, 3.0, x0=sam.initial_state(p, x0)))  # retraction rings for ~2.5 s
+    d = derived(p)
+    Q_A, Q_B = valve_flows(
+        s[S.x_s], s[S.p_A], s[S.p_B], p[P.offset], p[P.p_S], p[P.p_T], d[D.K_PA], d[D.K_AT],
+        d[D.K_PB], d[D.K_BT], p[P.K_leak_PA], p[P.K_leak_AT], p[P.K_leak_PB], p[P.K_leak_BT],
+        p[P.leak_band], p[P.lap], p[P.R_supply], p[P.Q_sat])
+    assert abs(s[S.v]) > 5e-3
+    assert d[D.A_A] * s[S.v] == pytest.approx(Q_A, rel=0.01)
+    assert d[D.A_B] * s[S.v] == pytest.approx(-Q_B, rel=0.01)
+
+
+def test_centred_valve_drifts_only_by_null_leakage():
+    """Valve closed and centred, no faults: the load sinks at the rate the laminar null
+    leakage of Eqs. (13)-(14) lets it, found by hand from flow and force balances."""
+    p = PLANT.vector()
+    x0 = 0.15
+    res = run(p, 0.0, 6.0, x0=sam.initial_state(p, x0))
+    s = final_state(res)
+    d = derived(p)
+    A_A, A_B, p_S = d[D.A_A], d[D.A_B], p[P.p_S]
+
+    def force_residual(v):
+        p_A = (p[P.K_leak_PA] * p_S - A_A * v) / (p[P.K_leak_PA] + p[P.K_leak_AT])
+        p_B = (p[P.K_leak_PB] * p_S + A_B * v) / (p[P.K_leak_PB] + p[P.K_leak_BT])
+        return p_A * A_A - p_B * A_B - boom_force(p, s[S.x]) - steady_friction(p, v)
+
+    v_hand = brentq(force_residual, -0.05, -1e-9)
+    assert -5e-3 < v_hand < -1e-4  # sinking, about a millimetre per second
+    assert s[S.v] == pytest.approx(v_hand, rel=0.02)
+    # and without the null leakage the piston would hold still
+    p_tight = PLANT.replace(K_leak_PA=0.0, K_leak_AT=0.0, K_leak_PB=0.0, K_leak_BT=0.0).vector()
+    held = run(p_tight, 0.0, 2.0, x0=sam.initial_state(p, x0))
+    assert abs(held["x"][0, -1] - x0) < 1e-6
+
+
+def linearised_frequency_hz(p, s, u):
+    d = derived(p)
+
+    def f(state):
+        ds = np.empty(7)
+        rhs(state, u, p, d, ds)
+        return ds
+
+    J = np.empty((7, 7))
+    for j in range(7):
+        h = 1e-6 * max(abs(s[j]), 1e-3)
+        e = np.zeros(7)
+        e[j] = h
+        J[:, j] = (f(s + e) - f(s - e)) / (2 * h)
+    ev = np.linalg.eigvals(J)
+    hydraulic = ev[(np.abs(ev.imag) > 1.0) & (np.abs(ev) < 100.0)]  # spool modes sit at 2 pi 20 rad/s
+    return np.abs(hydraulic[0]) / (2 * np.pi)
+
+
+@pytest.mark.parametrize("B_eff, expected_hz", [(7.5e8, 6.95), (3.0e8, 4.68)])
+def test_hydraulic_natural_frequency(B_eff, expected_hz):
+    """The model's linearised hydraulic mode at the paper's operating point agrees with the
+    classic sqrt(B/m (A_A^2/V_A + A_B^2/V_B)) within 10 % (the classic form ignores the
+    valve's and friction's stiffness); the paper's Fig. 4 gives 4.5 Hz (docs/model.md)."""
+    p = PLANT.replace(B_eff=B_eff).vector()
+    s = final_state(run(p, 2.5, 2.0))
+    d = derived(p)
+    x = s[S.x]
+    V_A, V_B = p[P.V_0A] + d[D.A_A] * x, p[P.V_0B] + d[D.A_B] * (p[P.x_max] - x)
+    m = d[D.J_tot] / torque_arm(x, p[P.L_1], p[P.L_2], p[P.L_3]) ** 2
+    f_classic = np.sqrt(B_eff / m * (d[D.A_A] ** 2 / V_A + d[D.A_B] ** 2 / V_B)) / (2 * np.pi)
+    f_model = linearised_frequency_hz(p, s, 2.5)
+    assert f_model == pytest.approx(f_classic, rel=0.10)
+    assert f_model == pytest.approx(expected_hz, rel=0.02)
+
+
+def test_euler_at_1ms_tracks_tight_reference_solution():
+    """Eq. (22) at T = 1 ms against a tight-tolerance implicit solution of the same
+    right-hand side (Eq. (19)): pressures within 0.5 % of p_S throughout; velocity within
+    2 % of the peak speed in the transient and 0.2 % in the last 0.1 s (first-order error)."""
+    p = PLANT.vector()
+    d = derived(p)
+    x0 = sam.initial_state(p, 0.05)
+    seconds, u = 1.0, 2.5
+
+    def f(_, s):
+        ds = np.empty(7)
+        rhs(s, u, p, d, ds)
+        return ds
+
+    ref = solve_ivp(f, (0, seconds), x0, method="Radau", rtol=1e-9,
+                    atol=[1.0, 1.0, 1e-9, 1e-7, 1e-10, 1e-10, 1e-12], t_eval=np.arange(0, 1001) * DT)
+    assert ref.success
+    euler = run(p, u, seconds, x0=x0)
+    assert np.max(np.abs(euler["p_A"][0] - ref.y[S.p_A])) < 0.005 * p[P.p_S]
+    assert np.max(np.abs(euler["p_B"][0] - ref.y[S.p_B])) < 0.005 * p[P.p_S]
+    v_err = np.abs(euler["v"][0] - ref.y[S.v])
+    assert np.max(v_err) < 0.02 * np.max(np.abs(ref.y[S.v]))
+    assert np.max(v_err[-100:]) < 0.002 * np.max(np.abs(ref.y[S.v]))
+
+
+def test_batched_and_single_runs_agree_bit_for_bit():
+    rng = np.random.default_rng(3)
+    params = np.tile(PLANT.vector(), (16, 1))
+    params[:, P.B_eff] = rng.uniform(3e8, 1.2e9, 16)
+    params[:, P.K_int] = rng.uniform(0, 5.27e-9, 16)
+    params[:, P.offset] = rng.uniform(-0.05, 0.05, 16)
+    u = 2.5 * np.sign(np.sin(np.arange(3000) * DT * 2 * np.pi * 0.5))
+    batch = sam.simulate_batch(params, u, DT, record_every=7)
+    for i in (0, 5, 15):
+        single = sam.simulate_batch(params[i], u, DT, record_every=7)
+        for name in S.__members__:
+            assert np.array_equal(batch[name][i], single[name][0])
+
+
+def test_step_batch_equals_simulator_step():
+    """The filter's process model (step_batch) is the simulator's step: same numbers."""
+    p = PLANT.replace(B_eff=9e8).vector()
+    res = run(p, 2.5, 0.2)
+    s = np.array([res[name][0, 100] for name in S.__members__])
+    nxt, _ = sam.step_batch(s[None], np.array([2.5]), p[None], DT)
+    assert np.array_equal(nxt[0], [res[name][0, 101] for name in S.__members__])
+
+
+GSA_BOX = {  # Table 1 and Table 5
+    "offset": (-0.05, 0.05), "Q_N_PA": (15 * LPM, 35 * LPM), "dp_N_PA": (5e5, 40e5),
+    "Q_N_BT": (15 * LPM, 35 * LPM), "dp_N_BT": (5e5, 40e5), "B_eff": (3e8, 1.2e9),
+    "b": (2000.0, 5000.0), "K_int": (0.0, 5.27e-9), "K_extA": (0.0, 5.27e-9), "K_extB": (0.0, 5.27e-9),
+}
+
+
+@settings(max_examples=60, deadline=None)
+@given(unit=st.lists(st.floats(0.0, 1.0), min_size=len(GSA_BOX), max_size=len(GSA_BOX)),
+       u=st.sampled_from([2.5, -2.5, 10.0, -10.0]), m_L=st.floats(0.0, 800.0))
+def test_no_nan_or_inf_over_parameter_box(unit, u, m_L):
+    """Over the whole box of Tables 1 and 5 (and loads 0-800 kg, both directions, full
+    opening), a 4 s run stays finite and inside its physical bounds."""
+    p = PLANT.replace(m_L=m_L).vector()
+    for (name, (lo, hi)), w in zip(GSA_BOX.items(), unit):
+        p[P[name]] = lo + w * (hi - lo)
+    res = run(p, u, 4.0, x0=sam.initial_state(p, 0.0 if u > 0 else 0.3), record_every=10)
+    for name in S.__members__:
+        assert np.all(np.isfinite(res[name]))
+    assert np.all(res["p_A"] >= sam.constants.P_CAVITATION)
+    assert np.all((res["x"] >= 0) & (res["x"] <= p[P.x_max]))
