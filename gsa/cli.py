@@ -1,0 +1,99 @@
+"""``samfdi gsa run``: a Sobol' study from its TOML file to tables and figures."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+import warnings
+from pathlib import Path
+
+from sam.errors import UserError
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    gsa = sub.add_parser("gsa", help="Sobol' global sensitivity analysis",
+                         description="Sobol' global sensitivity analysis of a study file.")
+    gsa_sub = gsa.add_subparsers(dest="gsa_command", metavar="SUBCOMMAND", required=True)
+    p = gsa_sub.add_parser(
+        "run", help="run a study (e.g. scenarios/gsa/paper_parameters.toml)",
+        description="Run a Sobol' study and write indices.csv, ranking.csv, interactions.csv, "
+                    "summary.md and figures into --out. Finished chunks are checkpointed: a killed "
+                    "run continues with --resume.")
+    p.add_argument("study", type=Path, help="study TOML file")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--n", type=int, default=None, help="base sample size N (overrides the study's)")
+    p.add_argument("--estimator", default=None,
+                   help="saltelli2010-jansen (default), saltelli2002 (the paper's), janon, azzini")
+    p.add_argument("--bootstrap", type=int, default=None, help="bootstrap resamples (default: the study's)")
+    p.add_argument("--workers", type=int, default=None, help="cores to use (default: all)")
+    p.add_argument("--executor", choices=("auto", "inline", "processes", "dask"), default="auto",
+                   help="auto: the SAM model runs in-process on --workers threads, others in processes")
+    p.add_argument("--scheduler", default=None, help="dask.distributed scheduler ADDRESS (implies dask)")
+    p.add_argument("--chunk-size", type=int, default=None, help="runs per checkpointed chunk")
+    p.add_argument("--resume", action="store_true", help="continue a killed run in --out")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_command)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    from gsa.errors import GSAError
+
+    try:
+        return _run(args)
+    except GSAError as exc:
+        raise UserError(str(exc)) from None
+
+
+def _run(args: argparse.Namespace) -> int:
+    from gsa import ESTIMATORS, run, saltelli_design
+    from gsa.report import write_report
+    from gsa.sam_model import SamModel
+    from gsa.studies import load_study
+
+    spec = load_study(args.study)
+    N = args.n if args.n is not None else spec.N
+    if N < 2:
+        raise UserError(f"--n: the base sample size must be >= 2, got {N}")
+    estimator = args.estimator or spec.estimator
+    if estimator is not None and estimator not in ESTIMATORS:
+        raise UserError(f"--estimator: unknown estimator {estimator!r}; expected one of {sorted(ESTIMATORS)}")
+    workers = args.workers or os.cpu_count() or 1
+    if workers < 1:
+        raise UserError(f"--workers: must be >= 1, got {workers}")
+    is_sam = isinstance(spec.study.model, SamModel)
+    executor = _executor(args, is_sam)
+    study = spec.study
+    if is_sam:
+        threads = workers if executor == "inline" else 1
+        study = dataclasses.replace(study, model=dataclasses.replace(study.model, threads=threads))
+    chunk = args.chunk_size or (4096 if is_sam else 65536)
+    args.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        design = saltelli_design(study.problem, N=N, seed=spec.seed)
+        result = run(study, design, args.out, chunk_size=chunk, executor=executor,
+                     workers=None if executor == "inline" else workers, scheduler=args.scheduler,
+                     resume=args.resume, progress=not args.no_progress)
+        kwargs = {"estimator": estimator} if estimator else {}
+        sobol = result.analyze(n_boot=args.bootstrap if args.bootstrap is not None else spec.n_bootstrap,
+                               ci=spec.ci, seed=spec.seed, **kwargs)
+    runtime = time.perf_counter() - t0
+    paths = write_report(sobol, spec, args.out, runtime)
+    print(f"{study.name}: {design.n_runs} runs, {study.M} outputs, estimator {sobol.estimator}, "
+          f"{runtime:.1f} s ({result.chunks_computed} chunks computed, {result.chunks_reused} reused)")
+    for path in paths:
+        print(f"  wrote {path}")
+    return 0
+
+
+def _executor(args: argparse.Namespace, is_sam: bool) -> str:
+    if args.scheduler:
+        return "dask"
+    if args.executor != "auto":
+        return args.executor
+    if args.workers == 1:
+        return "inline"
+    return "inline" if is_sam else "processes"

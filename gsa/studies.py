@@ -1,0 +1,207 @@
+"""Study files (TOML): a Problem, a model and its outputs, as a person writes them.
+
+A study names its model (``sam`` or an analytic test function), its uncertain
+parameters with bounds, distribution and unit, the base sample size N, the
+seed and, for ``sam``, the simulated experiment and its outputs. See
+``scenarios/gsa/*.toml``. Every error names the file and the key.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gsa.problem import DISTRIBUTIONS, Problem
+from gsa.runner import Study
+from gsa.testfunctions import ishigami, ishigami_indices, sobol_g, sobol_g_indices
+from sam.constants import LPM
+from sam.errors import UserError, where
+
+#: Units a study may give bounds in, and their factor to SI.
+UNITS = {"1": 1.0, "SI": 1.0, "%": 0.01, "L/min": LPM, "bar": 1e5, "MPa": 1e6, "Pa": 1.0,
+         "m^3/s": 1.0, "m^3/(s Pa^0.5)": 1.0, "N s/m": 1.0, "N": 1.0, "kg": 1.0, "m": 1.0}
+MODELS = ("sam", "ishigami", "sobol_g")
+_TOP = {"name", "description", "model", "N", "seed", "estimator", "n_bootstrap", "ci",
+        "parameters", "simulation", "model_options", "steady_state"}
+_PARAM_KEYS = {"bounds", "distribution", "unit", "description", "group"}
+_SIM_KEYS = {"duration_s", "dt_s", "outputs", "every_s", "instants_s", "steady_from_s", "input",
+             "load", "plant"}
+
+
+@dataclass(frozen=True)
+class StudySpec:
+    """A parsed study file."""
+
+    study: Study
+    N: int
+    seed: int
+    estimator: str | None
+    n_bootstrap: int
+    ci: str
+    units: tuple[str, ...]
+    instants_s: tuple[float, ...] = ()
+    steady_definition: str = ""
+    description: str = ""
+    source: Path | None = None
+    analytic: tuple[np.ndarray, np.ndarray] | None = None  #: exact (S1, ST) of test functions
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def load_study(path: str | Path) -> StudySpec:
+    from sam.plant import read_toml
+
+    path = Path(path)
+    return study_from_table(read_toml(path), path)
+
+
+def study_from_table(table: dict[str, Any], source: Path) -> StudySpec:
+    _no_unknown(table, _TOP, source, "")
+    model = table.get("model")
+    if model not in MODELS:
+        raise UserError(f"{where(source, 'model')}: expected one of {list(MODELS)}, got {model!r}")
+    N = table.get("N")
+    if isinstance(N, bool) or not isinstance(N, int) or N < 2:
+        raise UserError(f"{where(source, 'N')}: the base sample size must be an integer >= 2, got {N!r}")
+    seed = table.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise UserError(f"{where(source, 'seed')}: expected a non-negative integer, got {seed!r}")
+    n_boot = table.get("n_bootstrap", 1000)
+    if isinstance(n_boot, bool) or not isinstance(n_boot, int) or n_boot < 0:
+        raise UserError(f"{where(source, 'n_bootstrap')}: expected an integer >= 0, got {n_boot!r}")
+    problem, units = _problem(table, source)
+    name = str(table.get("name", source.stem))
+    common = dict(N=N, seed=seed, estimator=table.get("estimator"), n_bootstrap=n_boot,
+                  ci=str(table.get("ci", "percentile")), units=units,
+                  description=str(table.get("description", "")), source=source)
+    if model == "sam":
+        return _sam_study(table, source, name, problem, units, common)
+    return _analytic_study(table, source, name, model, problem, common)
+
+
+def _no_unknown(table: dict, allowed: set, source, prefix: str) -> None:
+    import difflib
+
+    for key in table:
+        if key not in allowed:
+            match = difflib.get_close_matches(key, sorted(allowed), n=1)
+            hint = f" (did you mean '{match[0]}'?)" if match else ""
+            raise UserError(f"{where(source, prefix + key)}: unknown key{hint}")
+
+
+def _problem(table, source) -> tuple[Problem, tuple[str, ...]]:
+    params = table.get("parameters")
+    if not isinstance(params, dict) or not params:
+        raise UserError(f"{where(source, 'parameters')}: needs at least one [parameters.NAME] table")
+    names, bounds, dists, units, groups = [], [], [], [], []
+    for name, spec in params.items():
+        field_ = f"parameters.{name}"
+        if not isinstance(spec, dict):
+            raise UserError(f"{where(source, field_)}: expected a table")
+        _no_unknown(spec, _PARAM_KEYS, source, field_ + ".")
+        dist = spec.get("distribution", "uniform")
+        if dist not in DISTRIBUTIONS:
+            raise UserError(f"{where(source, field_ + '.distribution')}: unknown distribution {dist!r}; "
+                            f"expected one of {list(DISTRIBUTIONS)}")
+        b = spec.get("bounds")
+        if not isinstance(b, list) or len(b) not in (2, 4) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in b):
+            raise UserError(f"{where(source, field_ + '.bounds')}: expected [low, high] "
+                            f"(normal: [mean, sd] or [mean, sd, low, high]), got {b!r}")
+        if dist != "normal" and not b[0] < b[1]:
+            raise UserError(f"{where(source, field_ + '.bounds')}: lower bound {b[0]} must be below "
+                            f"upper bound {b[1]}")
+        unit = spec.get("unit", "1")
+        if unit not in UNITS:
+            raise UserError(f"{where(source, field_ + '.unit')}: unknown unit {unit!r}; expected one of {list(UNITS)}")
+        names.append(name)
+        bounds.append(tuple(float(v) for v in b))
+        dists.append(dist)
+        units.append(unit)
+        groups.append(spec.get("group", name))
+    grouped = len(set(groups)) < len(groups)
+    try:
+        problem = Problem(names=tuple(names), bounds=tuple(bounds), dists=tuple(dists),
+                          groups=tuple(groups) if grouped else None)
+    except ValueError as exc:
+        raise UserError(f"{where(source, 'parameters')}: {exc}") from None
+    return problem, tuple(units)
+
+
+def _analytic_study(table, source, name, model, problem, common) -> StudySpec:
+    options = table.get("model_options", {})
+    k = len(problem.names)
+    if model == "ishigami":
+        _no_unknown(options, {"a", "b"}, source, "model_options.")
+        if k != 3:
+            raise UserError(f"{where(source, 'parameters')}: the Ishigami function has 3 parameters, got {k}")
+        a, b = float(options.get("a", 7.0)), float(options.get("b", 0.1))
+        func, exact = functools.partial(ishigami, a=a, b=b), ishigami_indices(a, b)
+    else:
+        _no_unknown(options, {"a"}, source, "model_options.")
+        a = options.get("a")
+        if not isinstance(a, list) or len(a) != k:
+            raise UserError(f"{where(source, 'model_options.a')}: needs one a_i per parameter ({k})")
+        func, exact = functools.partial(sobol_g, a=np.asarray(a, float)), sobol_g_indices(a)
+    study = Study(name, problem, func, output_names=(model,))
+    return StudySpec(study=study, analytic=exact, **common)
+
+
+def _sam_study(table, source, name, problem, units, common) -> StudySpec:
+    import sam
+    from sam.plant import load_plant
+    from sam.profiles import INPUT_KINDS, evaluate
+    from sam.scenario import _load  # the scenario's load table: constant mass or a profile
+
+    from gsa.sam_model import SamModel
+
+    sim = table.get("simulation")
+    if not isinstance(sim, dict):
+        raise UserError(f"{where(source, 'simulation')}: model 'sam' needs a [simulation] table")
+    _no_unknown(sim, _SIM_KEYS, source, "simulation.")
+    for pname in problem.names:
+        if pname not in sam.PARAM_NAMES:
+            raise UserError(f"{where(source, f'parameters.{pname}')}: not a parameter of the SAM model; "
+                            f"see sam.PARAM_NAMES")
+    dt = float(sim.get("dt_s", 1e-3))
+    duration = float(sim.get("duration_s", 4.0))
+    every = float(sim.get("every_s", 0.01))
+    n_steps = int(round(duration / dt))
+    stride = int(round(every / dt))
+    if stride < 1 or n_steps < stride:
+        raise UserError(f"{where(source, 'simulation.every_s')}: must be a multiple of dt_s within the run")
+    t = np.arange(n_steps) * dt
+    plant = load_plant(source.parent / sim["plant"] if "plant" in sim else None)
+    u = evaluate(INPUT_KINDS, sim.get("input", {"kind": "step", "amplitude_V": 2.5}), t, source,
+                 "simulation.input")
+    load = _load({"load": sim.get("load", {})}, t, source)
+    base = plant.vector()
+    time_varying = None
+    if "m_L" in load:  # a constant load needs no per-step update
+        m = load["m_L"]
+        if np.all(m == m[0]):
+            base[sam.P.m_L] = m[0]
+        else:
+            time_varying = {"m_L": m}
+    outputs = tuple(sim.get("outputs", ["p_A", "p_B", "v"]))
+    for o in outputs:
+        if o not in sam.S.__members__:
+            raise UserError(f"{where(source, 'simulation.outputs')}: unknown output {o!r}; "
+                            f"expected states {list(sam.S.__members__)}")
+    steady_from = float(sim.get("steady_from_s", duration - 1.0))
+    model = SamModel(
+        base=base, columns=tuple(int(sam.P[n]) for n in problem.names),
+        scales=np.array([UNITS[u_] for u_ in units]), u=u, dt=dt,
+        record_at=np.arange(stride, n_steps + 1, stride), signals=outputs,
+        steady_from=int(round(steady_from / dt)), time_varying=time_varying,
+    )
+    names, times = model.output_names_and_times()
+    study = Study(name, problem, model, output_names=names, output_times=times)
+    instants = tuple(float(v) for v in sim.get("instants_s", []))
+    steady = (f"mean of the outputs recorded every {every * 1e3:g} ms from {steady_from:g} s "
+              f"to {duration:g} s")
+    return StudySpec(study=study, instants_s=instants, steady_definition=steady, **common)

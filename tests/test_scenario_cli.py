@@ -1,0 +1,185 @@
+"""Scenarios, plant files and the `samfdi simulate` command, including bad input."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import sam
+from sam.constants import LPM
+from sam.errors import UserError
+from sam.plant import load_plant
+from sam.scenario import load_scenario, run_scenario
+from samfdi.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER_STEP = ROOT / "scenarios" / "paper_step.toml"
+
+
+def write(tmp_path: Path, name: str, text: str) -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def scenario_text(**tables: str) -> str:
+    base = {
+        "head": 'duration_s = 2.0\nseed = 3\n',
+        "input": '[input]\nkind = "step"\namplitude_V = 2.5\n',
+    }
+    base.update(tables)
+    return "\n".join(base.values())
+
+
+def test_plant_defaults_are_appendix_2():
+    plant = load_plant()
+    assert plant.valve.Q_N_PA == pytest.approx(24 * LPM)
+    assert plant.valve.dp_N_BT == 3.5e6
+    assert plant.cylinder.D_piston == 0.080 and plant.cylinder.x_max == 0.545
+    assert plant.boom.m_L == 494.0 and plant.boom.alpha == 0.415
+    assert plant.supply.p_S == 10e6
+    assert plant.valve.omega_n == pytest.approx(2 * np.pi * 20)
+
+
+def test_user_plant_overrides_only_its_keys(tmp_path):
+    path = write(tmp_path, "mine.toml", 'name = "rig2"\n[fluid]\nB_eff = 1.1e9\n[boom]\nm_L = 200.0\n')
+    plant = load_plant(path)
+    assert plant.name == "rig2" and plant.fluid.B_eff == 1.1e9 and plant.boom.m_L == 200.0
+    assert plant.valve == load_plant().valve
+
+
+@pytest.mark.parametrize("text, words", [
+    ("[fluid]\nB_eff = -1.0\n", ["fluid.B_eff", "> 0", "-1.0"]),
+    ("[cylinder]\nV_0A = 0\n", ["cylinder.V_0A", "> 0"]),
+    ("[boom]\nm_L = -5\n", ["boom.m_L", ">= 0"]),
+    ("[supply]\np_S = 1e5\np_T = 2e5\n", ["supply.p_S", "above tank"]),
+    ("[valve]\nQ_N_PAA = 1e-4\n", ["valve.Q_N_PAA", "unknown key", "Q_N_PA"]),
+    ("[valves]\nQ_N_PA = 1e-4\n", ["valves", "unknown table"]),
+    ("[cylinder]\nx_max = \"long\"\n", ["cylinder.x_max", "expected a number"]),
+    ("[cylinder]\nD_rod = 0.09\n", ["cylinder.D_rod", "below piston diameter"]),
+    ("[fluid\nB_eff = 1\n", ["cannot read TOML"]),
+])
+def test_bad_plant_values_are_named(tmp_path, text, words):
+    path = write(tmp_path, "bad.toml", text)
+    with pytest.raises(UserError) as err:
+        load_plant(path)
+    message = str(err.value)
+    assert "bad.toml" in message
+    for word in words:
+        assert word in message
+
+
+def test_paper_step_scenario_runs_to_the_shared_format(tmp_path):
+    rec = run_scenario(load_scenario(PAPER_STEP))
+    assert rec.t[-1] == pytest.approx(4.0) and rec.dt == pytest.approx(1e-3)
+    assert np.all(rec.signals["u"] == 2.5)
+    # quantised encoder: theta is a whole number of 0.007 deg pulses
+    pulses = rec.signals["theta"] / np.deg2rad(0.007)
+    np.testing.assert_allclose(pulses, np.round(pulses), atol=1e-6)
+    # pressure noise is the stated 20 kPa
+    noise = rec.signals["pA"] - rec.truth["true_pA"]
+    assert np.std(noise) == pytest.approx(20e3, rel=0.05)
+    assert np.all(rec.truth["true_K_extA"] == 0.0) and np.all(rec.truth["true_mL"] == 494.0)
+
+
+def test_fault_and_load_profiles_reach_the_model(tmp_path):
+    text = scenario_text(
+        faults='[faults.K_extA]\nkind = "step"\nvalue = 5.27e-9\nt0_s = 1.0\n',
+        load='[load]\nkind = "step"\nbefore_kg = 200.0\nafter_kg = 600.0\nt0_s = 0.5\n',
+    )
+    rec = run_scenario(load_scenario(write(tmp_path, "s.toml", text)))
+    k = rec.truth["true_K_extA"]
+    assert np.all(k[rec.t < 1.0] == 0) and np.all(k[rec.t >= 1.0] == 5.27e-9)
+    assert rec.truth["true_mL"][0] == 200.0 and rec.truth["true_mL"][-1] == 600.0
+    # same run without the leak: the leak lowers the piston-side pressure and the speed
+    healthy = run_scenario(load_scenario(write(tmp_path, "h.toml", scenario_text(
+        load='[load]\nkind = "step"\nbefore_kg = 200.0\nafter_kg = 600.0\nt0_s = 0.5\n'))))
+    assert rec.truth["true_v"][-1] < healthy.truth["true_v"][-1]
+    assert np.array_equal(rec.truth["true_pA"][rec.t < 1.0], healthy.truth["true_pA"][healthy.t < 1.0])
+
+
+@pytest.mark.parametrize("kind, keys", [
+    ("sine", "amplitude_V = 3.0\nfrequency_Hz = 0.5\n"),
+    ("chirp", "amplitude_V = 3.0\nf0_Hz = 0.1\nf1_Hz = 2.0\n"),
+    ("prbs", "amplitude_V = 3.0\nhold_s = 0.2\n"),
+    ("cycle", "amplitude_V = 4.0\nperiod_s = 1.0\nramp_s = 0.1\n"),
+    ("ramp", "start_V = -3.0\nend_V = 3.0\nt0_s = 0.0\nt1_s = 2.0\n"),
+])
+def test_inputs_drive_both_directions(tmp_path, kind, keys):
+    text = scenario_text(input=f'[input]\nkind = "{kind}"\n{keys}', initial="[initial]\nx_m = 0.2\n")
+    rec = run_scenario(load_scenario(write(tmp_path, "s.toml", text)))
+    v = rec.truth["true_v"]
+    assert v.max() > 1e-3 and v.min() < -1e-3
+    assert np.all(np.abs(rec.signals["u"]) <= 10)
+
+
+def test_pwl_csv_input(tmp_path):
+    write(tmp_path, "u.csv", "t,u\n0,0\n0.5,3\n1.5,-3\n2,0\n")
+    text = scenario_text(input='[input]\nkind = "pwl_csv"\nfile = "u.csv"\n')
+    rec = run_scenario(load_scenario(write(tmp_path, "s.toml", text)))
+    assert rec.signals["u"][500] == pytest.approx(3.0) and rec.signals["u"][1000] == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize("tables, words", [
+    ({"head": "duration_s = 2.0\ndurration_s = 3\n"}, ["durration_s", "unknown key"]),
+    ({"input": '[input]\nkind = "stepp"\n'}, ["input.kind", "stepp"]),
+    ({"input": '[input]\nkind = "step"\namplitude = 2.5\n'}, ["input.amplitude", "unknown key"]),
+    ({"input": '[input]\nkind = "step"\namplitude_V = 20.0\n'}, ["input", "10.0 V", "20 V"]),
+    ({"faults": '[faults.K_leak]\nkind = "constant"\nvalue = 1e-9\n'}, ["faults.K_leak", "unknown fault"]),
+    ({"faults": '[faults.K_int]\nkind = "constant"\nvalue = -1e-9\n'}, ["faults.K_int", "negative"]),
+    ({"faults": '[faults.K_int]\nkind = "ramp"\nvalue = 1e-9\nt0_s = 1.0\n'}, ["faults.K_int", "t1_s"]),
+    ({"sensors": "[sensors]\nnoise = 1.0\n"}, ["sensors.noise", "unknown key"]),
+    ({"head": "duration_s = -1\n"}, ["duration_s", "positive"]),
+    ({"head": 'duration_s = 2.0\nplant = "nope.toml"\n'}, ["nope.toml", "not found"]),
+])
+def test_bad_scenarios_are_named(tmp_path, tables, words):
+    path = write(tmp_path, "bad.toml", scenario_text(**tables))
+    with pytest.raises(UserError) as err:
+        load_scenario(path)
+    for word in words:
+        assert word in str(err.value)
+
+
+def test_cli_simulate_writes_csv_mat_and_plot(tmp_path, capsys):
+    out, plot = tmp_path / "run.csv", tmp_path / "run.png"
+    assert main(["simulate", str(PAPER_STEP), "--out", str(out), "--plot", str(plot)]) == 0
+    rec = sam.read_recording(out)
+    assert rec.metadata["plant"] == "sam" and "true_K_int" in rec.truth
+    assert plot.stat().st_size > 10_000
+    assert main(["simulate", str(PAPER_STEP), "--out", str(tmp_path / "run.mat")]) == 0
+    mat = sam.read_recording(tmp_path / "run.mat")
+    np.testing.assert_array_equal(mat.signals["pA"], rec.signals["pA"])  # same seed, same noise
+
+
+def test_cli_refuses_to_overwrite_and_names_the_file(tmp_path, capsys):
+    out = tmp_path / "run.csv"
+    out.write_text("precious user data\n")
+    assert main(["simulate", str(PAPER_STEP), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "run.csv" in err and "--force" in err and "Traceback" not in err
+    assert out.read_text() == "precious user data\n"
+
+
+def test_cli_bad_input_is_one_line_without_traceback(tmp_path):
+    bad = write(tmp_path, "bad.toml", scenario_text(head="duration_s = 2.0\nseeed = 1\n"))
+    done = subprocess.run([sys.executable, "-m", "samfdi", "simulate", str(bad), "--out", str(tmp_path / "x.csv")],
+                          capture_output=True, text=True, cwd=ROOT)
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr
+    assert "bad.toml" in done.stderr and "seeed" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_demo_writes_named_folder(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out)]) == 0
+    assert (out / "healthy_vs_leak.png").exists()
+    healthy, leak = sam.read_recording(out / "healthy.csv"), sam.read_recording(out / "extA_leak.csv")
+    assert leak.truth["true_K_extA"][-1] == pytest.approx(0.5 * LPM / np.sqrt(10e6))
+    assert leak.truth["true_pA"][-1] < healthy.truth["true_pA"][-1]
+    assert str(out) in capsys.readouterr().out
