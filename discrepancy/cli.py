@@ -1,0 +1,41 @@
+"""``samfdi mismatch RECORDING [--plant plant.toml] [--validate OTHER] --out DIR``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_commands(subparsers) -> None:
+    p = subparsers.add_parser(
+        "mismatch",
+        help="locate where simulation and a recording differ, name the missing physics, model it",
+        description="Compare the plant model with a recording, calibrate the nominal parameters, locate the "
+                    "mismatch, rank candidate effects (entrained air, friction, spool lap, flow saturation, "
+                    "supply droop, bypass leakage, hose compliance, sensor lag/delay, load mass) and write "
+                    "DIR/report.md, DIR/report.json and figures.",
+    )
+    p.add_argument("recording", type=Path, help="recording (.csv or .mat, see recording-format.md)")
+    p.add_argument("--plant", type=Path, default=None, help="plant TOML (default: the shipped SAM)")
+    p.add_argument("--validate", type=Path, default=None,
+                   help="second recording of the same plant for held-out validation (default: every third 1 s segment)")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--segment", type=float, default=1.0, help="simulation segment length [s] (default 1)")
+    p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p.set_defaults(func=handler)
+
+
+def handler(args: argparse.Namespace) -> int:
+    import sam
+
+    from .diagnose import diagnose
+
+    plant = sam.load_plant(args.plant)
+    rec = sam.read_recording(args.recording).measured()
+    val = sam.read_recording(args.validate).measured() if args.validate else None
+    report = diagnose(rec, plant, args.out, validate=val, seg_s=args.segment, figures=not args.no_figures)
+    print(report.headline)
+    for w in report.warnings:
+        print(f"warning: {w}")
+    print(f"report: {args.out / 'report.md'}  ({report.timings['total_s']:.1f} s)")
+    return 0

@@ -1,0 +1,174 @@
+"""Turn a recording into what the diagnosis needs, refusing what it cannot use.
+
+Everything the user can get wrong about the *data* is checked here and raised
+as one-line :class:`sam.errors.UserError` messages: missing columns, a recording
+too short to separate hypotheses, an input that does not excite the system, a
+validation file from another plant.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from sam import P, Plant, S, simulate_batch
+from sam.errors import UserError
+from sam.geometry import piston_position
+from sam.recording import Recording
+
+#: Shortest recording the diagnosis accepts [s]: it needs at least three
+#: simulation segments, two to fit and one to hold out.
+MIN_DURATION_S = 3.0
+#: Smallest peak-to-peak control signal [V] that counts as an excitation.
+MIN_INPUT_RANGE_V = 0.05
+#: Fastest simulation step [s]; slower recordings are simulated with sub-steps.
+MAX_SIM_DT = 1e-3
+
+
+@dataclass
+class Prepared:
+    """A recording as arrays on its sample grid, with smoothed states and the spool trajectory."""
+
+    name: str
+    t: np.ndarray
+    dt: float  # sample step [s]
+    n_sub: int  # simulation sub-steps per sample
+    u: np.ndarray
+    y: dict[str, np.ndarray]  # measured 'pA', 'pB', 'x' (x from theta if needed); NaN filled
+    valid: dict[str, np.ndarray]  # bool masks: sample was measured (not NaN)
+    smooth: dict[str, np.ndarray]  # smoothed pA, pB, x, v, a, dpA, dpB
+    x_s: np.ndarray  # spool position from the model's own spool dynamics (exact: depends on u only)
+    dx_s: np.ndarray
+    metadata: dict[str, str]
+
+    @property
+    def n(self) -> int:
+        return len(self.t)
+
+    @property
+    def duration(self) -> float:
+        return self.n * self.dt
+
+
+def _label(rec: Recording) -> str:
+    return str(rec.source) if rec.source is not None else "recording"
+
+
+def _fill_nan(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    ok = np.isfinite(y)
+    if ok.all():
+        return y.astype(float), ok
+    idx = np.arange(len(y))
+    return np.interp(idx, idx[ok], y[ok]), ok
+
+
+def prepare(rec: Recording, plant: Plant, *, role: str = "recording", min_duration: float = MIN_DURATION_S) -> Prepared:
+    """Check a recording and build a :class:`Prepared` from it (raises UserError)."""
+    label = _label(rec)
+    for col in ("u", "pA", "pB"):
+        if col not in rec.signals:
+            raise UserError(f"{label}: missing column '{col}' ({role} needs t, u, pA, pB and x or theta)")
+    if "x" not in rec.signals and "theta" not in rec.signals:
+        raise UserError(f"{label}: missing column 'x' or 'theta' ({role} needs the piston position or the joint angle)")
+    if rec.n < 10:
+        raise UserError(f"{label}: only {rec.n} samples; too short to separate hypotheses")
+    dt = rec.dt
+    duration = rec.n * dt
+    if duration < min_duration:
+        raise UserError(
+            f"{label}: {duration:.2f} s long; too short to separate hypotheses "
+            f"(need at least {min_duration:g} s: two segments to fit, one to hold out)"
+        )
+    u, _ = _fill_nan(np.nan_to_num(rec.signals["u"], nan=np.nan))
+    if np.ptp(u) < MIN_INPUT_RANGE_V:
+        raise UserError(
+            f"{label}: 'u': the input does not excite the system (range {np.ptp(u):.3g} V around {np.mean(u):.3g} V); "
+            f"a diagnosis needs the valve driven in both directions or at least varied by {MIN_INPUT_RANGE_V} V"
+        )
+    b = plant.boom
+    y, valid = {}, {}
+    for col in ("pA", "pB"):
+        y[col], valid[col] = _fill_nan(rec.signals[col])
+    if "x" in rec.signals:
+        y["x"], valid["x"] = _fill_nan(rec.signals["x"])
+    else:
+        th, valid["x"] = _fill_nan(rec.signals["theta"])
+        y["x"] = piston_position(th, b.L_1, b.L_2, b.L_3)
+    x_max = plant.cylinder.x_max
+    if np.nanmin(y["x"]) < -0.05 * x_max or np.nanmax(y["x"]) > 1.05 * x_max:
+        raise UserError(
+            f"{label}: piston position spans {np.min(y['x']):.3f}..{np.max(y['x']):.3f} m, outside the stroke "
+            f"0..{x_max:.3f} m of plant '{plant.name}': wrong plant or wrong geometry"
+        )
+    p_hi = 2.5 * plant.supply.p_S
+    for col in ("pA", "pB"):
+        if np.max(y[col]) > p_hi:
+            raise UserError(
+                f"{label}: '{col}' reaches {np.max(y[col]) / 1e6:.1f} MPa, far above the supply pressure "
+                f"{plant.supply.p_S / 1e6:.1f} MPa of plant '{plant.name}': wrong plant?"
+            )
+    n_sub = max(1, int(math.ceil(dt / MAX_SIM_DT - 1e-9)))
+    smooth = _smooth(y, dt, rec.signals.get("v"))
+    x_s, dx_s = spool_trajectory(plant, u, dt / n_sub, n_sub)
+    return Prepared(
+        name=label, t=np.asarray(rec.t, float), dt=dt, n_sub=n_sub, u=u, y=y, valid=valid, smooth=smooth,
+        x_s=x_s, dx_s=dx_s, metadata=dict(rec.metadata),
+    )
+
+
+def _window(dt: float, seconds: float, poly: int) -> int:
+    w = max(poly + 2, int(round(seconds / dt)) | 1)
+    return w if w % 2 else w + 1
+
+
+def _smooth(y: dict[str, np.ndarray], dt: float, v_meas: np.ndarray | None) -> dict[str, np.ndarray]:
+    """Savitzky-Golay smoothed signals and derivatives (for initial states and the generic route)."""
+    wp = _window(dt, 0.021, 2)
+    wx = _window(dt, 0.041, 3)
+    out = {
+        "pA": savgol_filter(y["pA"], wp, 2),
+        "pB": savgol_filter(y["pB"], wp, 2),
+        "dpA": savgol_filter(y["pA"], wp, 2, deriv=1, delta=dt),
+        "dpB": savgol_filter(y["pB"], wp, 2, deriv=1, delta=dt),
+        "x": savgol_filter(y["x"], wx, 3),
+        "v": savgol_filter(y["x"], wx, 3, deriv=1, delta=dt),
+        "a": savgol_filter(y["x"], _window(dt, 0.061, 3), 3, deriv=2, delta=dt),
+    }
+    if v_meas is not None and np.isfinite(v_meas).all():
+        out["v"] = np.asarray(v_meas, float)
+    return out
+
+
+def spool_trajectory(plant: Plant, u: np.ndarray, dt_sim: float, n_sub: int) -> tuple[np.ndarray, np.ndarray]:
+    """Spool position and rate at each sample, from the model's spool dynamics (Eq. (15)).
+
+    The spool depends on the input alone, so one run of the model gives it exactly.
+    """
+    p = plant.vector()[None, :]
+    uu = np.repeat(u, n_sub)
+    rec_at = np.arange(0, len(uu), n_sub)
+    res = simulate_batch(p, uu, dt_sim, record_at=rec_at, channels=("x_s", "dx_s"))
+    return res["x_s"][0], res["dx_s"][0]
+
+
+def check_same_plant(main: Prepared, other: Prepared, plant: Plant, other_label: str) -> None:
+    """Refuse a validation recording that comes from a different plant."""
+    a, b = main.metadata.get("plant"), other.metadata.get("plant")
+    if a and b and a.strip() != b.strip():
+        raise UserError(
+            f"{other_label}: metadata 'plant' is '{b}' but the recording is from '{a}': "
+            f"a validation file must come from the same machine"
+        )
+    pa = max(np.percentile(main.y["pA"], 99), np.percentile(main.y["pB"], 99))
+    pb = max(np.percentile(other.y["pA"], 99), np.percentile(other.y["pB"], 99))
+    if pb > 2.5 * pa + 1e6 or pa > 2.5 * pb + 1e6:
+        raise UserError(
+            f"{other_label}: pressures reach {pb / 1e6:.1f} MPa against {pa / 1e6:.1f} MPa in the recording: "
+            f"incompatible ranges, not the same plant or supply"
+        )
+
+
+__all__ = ["Prepared", "prepare", "check_same_plant", "spool_trajectory", "MIN_DURATION_S", "P", "S"]

@@ -1,0 +1,353 @@
+"""The mismatch diagnosis: compare -> calibrate -> locate -> name -> generic route -> model and show.
+
+:func:`diagnose` is the whole pipeline; :mod:`discrepancy.report` writes it out.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from sam import P, Plant
+from sam.recording import Recording
+
+from . import locate as loc
+from .data import Prepared, check_same_plant, prepare
+from .fitting import FitResult, Model, Split, correlation_time, evaluate, fit
+from .library import Free, Hypothesis, calibration_params, format_value, library
+from .simulation import SIGNALS, SegmentSimulator, fits
+
+#: A hypothesis is accepted when its BIC falls by more than this...
+BIC_STRONG = 10.0
+#: ...and it removes at least this share of the weighted squared error, on the fitting part and held out.
+MIN_GAIN = 0.05
+#: ...and it raises the mean held-out fit by at least this many percentage points (practical significance:
+#: below it the remaining residual is at the level of noise and of the segment start-up transients).
+MIN_FIT_POINTS = 0.5
+#: How many hypotheses enter the second (two-effect) round.
+SECOND_ROUND = 4
+
+
+@dataclass
+class Candidate:
+    hypothesis: list[Hypothesis]
+    result: FitResult
+    delta_bic: float
+    gain_fit: float  # relative reduction of the weighted squared error, fitting part
+    gain_held: float  # same, held out
+    signature: float  # 0..1 match of its sensitivity signature with the located residual
+    accepted: bool = False
+    delta_bic_all: float = 0.0
+    fit_before: dict = field(default_factory=dict)
+    fit_after: dict = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return " + ".join(h.name for h in self.hypothesis)
+
+    @property
+    def title(self) -> str:
+        return " + ".join(h.title for h in self.hypothesis)
+
+    def effect_values(self) -> dict[str, float]:
+        names = {f.name for h in self.hypothesis for f in h.params}
+        return {k: v for k, v in self.result.values.items() if k in names}
+
+    def summary(self) -> str:
+        vals = self.result.values
+        return "; ".join(h.summary(vals) for h in self.hypothesis)
+
+
+@dataclass
+class Report:
+    """Everything the diagnosis found; :func:`discrepancy.report.write` renders it."""
+
+    source: str
+    validate_source: str | None
+    verdict: str  # 'adequate', 'recalibrated', 'named', 'unknown_effect', 'unexplained'
+    headline: str
+    fit_table: dict  # model -> part -> signal -> fit %
+    calibration: list[dict]
+    located: dict
+    ranked: list[Candidate]
+    chosen: list[Candidate]
+    generic: dict | None
+    warnings: list[str]
+    timings: dict
+    figures: list[str] = field(default_factory=list)
+    n_eff: float = 0.0
+    traces: dict = field(default_factory=dict)  # for figures
+
+    @property
+    def named(self) -> list[str]:
+        return [h.name for c in self.chosen for h in c.hypothesis]
+
+
+def _calibration_changes(free: tuple[Free, ...], nominal: dict, fitted: FitResult) -> list[dict]:
+    out = []
+    for f in free:
+        a, b = nominal[f.name], fitted.values[f.name]
+        rel = (b - a) / a if (f.log and a) else b - a
+        out.append({"parameter": f.name, "label": f.label, "nominal": a, "calibrated": b,
+                    "change": rel, "relative": f.log, "at_bound": f.name in fitted.at_bounds,
+                    "text": f"{f.label}: {format_value(a, f.unit)} -> {format_value(b, f.unit)}"})
+    return out
+
+
+def _significant_change(c: dict) -> bool:
+    return abs(c["change"]) > (0.05 if c["relative"] else 0.002)
+
+
+def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, validate: Recording | None = None,
+             *, seg_s: float = 1.0, figures: bool = True, generic: bool = True) -> Report:
+    """Diagnose where and why ``plant`` fails to reproduce ``rec``; write the report to ``out_dir``."""
+    t_start = time.perf_counter()
+    timings = {}
+    warnings: list[str] = []
+    data = prepare(rec, plant)
+    if validate is not None:
+        vdata = prepare(validate, plant, role="validation recording", min_duration=1.0)
+        check_same_plant(data, vdata, plant, str(validate.source or "validation recording"))
+        split = Split(SegmentSimulator(data, seg_s, held_out_every=10**9), SegmentSimulator(vdata, seg_s, all_held_out=True))
+    else:
+        split = Split(SegmentSimulator(data, seg_s))
+    fsim = split.fit_sim
+
+    # ---- compare: nominal, then calibrate the GSA-ranked nominal parameters
+    calib = calibration_params(plant)
+    base = plant.vector()
+    cal_model = Model(base, calib)
+    nominal_values = cal_model.values_of(cal_model.theta_of({}))
+    th_nom = cal_model.theta_of({})
+    cal = fit(split, cal_model, [th_nom], max_nfev=60)
+    rss_nom = float(np.sum(evaluate(split, cal_model, th_nom[None, :], "fit") ** 2))
+    calibration = _calibration_changes(calib, nominal_values, cal)
+    for c in calibration:
+        if c["at_bound"]:
+            warnings.append(f"calibrated {c['parameter']} hit its bound ({c['text']}): the nominal plant may be far off")
+    timings["calibrate_s"] = time.perf_counter() - t_start
+
+    # ---- locate: residual of the calibrated model
+    cal_full = fsim.simulate(cal.params[None, :], full=True)
+    res = loc.full_residual(fsim, cal_full)
+    energy = sum(np.nan_to_num(res[k]) ** 2 for k in SIGNALS)
+    energy[np.isnan(res["pA"])] = np.nan
+    masks = loc.regimes(data, plant.supply.p_S, plant.cylinder.x_max)
+    sig_share = {k: float(np.nansum(res[k] ** 2) / max(np.nansum(energy), 1e-30)) for k in SIGNALS}
+    located = {
+        "signal_share": sig_share,
+        "windows": loc.windows(energy, data.t, data.dt),
+        "regimes": loc.regime_profile(energy, masks),
+        "whiteness": {k: loc.whiteness(res[k]) for k in SIGNALS},
+        "input_correlation": {k: loc.input_correlation(res[k], data.u, data.dt) for k in SIGNALS},
+    }
+    r_cal_fit = evaluate(split, cal_model, cal_model.theta_of(cal.values)[None, :], "fit")[0]
+    n_blocks = 3 * int(np.sum(fsim.segment_mask("fit")))
+    tau = correlation_time(r_cal_fit, n_blocks)
+    n_eff = max(cal.n_fit / tau, 10.0)
+    timings["locate_s"] = time.perf_counter() - t_start
+
+    # ---- name: signatures, then fit every hypothesis jointly with the calibration parameters
+    hyps = library(plant)
+    sig = _signatures(split, cal, calib, hyps, r_cal_fit)
+    cands = []
+    for h in hyps:
+        cands.append(_fit_hypothesis(split, cal, calib, [h], n_eff, sig.get(h.name, 0.0)))
+    cands.sort(key=_rank_key)
+    accepted = [c for c in cands if c.accepted]
+    chosen: list[Candidate] = []
+    if accepted:
+        first = accepted[0]
+        chosen.append(first)
+        # second round: a second effect on top of the first
+        r1 = evaluate(split, Model(first.result.params, (), first.result.meas), np.zeros((1, 0)), "fit")[0]
+        n_eff2 = max(first.result.n_fit / correlation_time(r1, n_blocks), 10.0)
+        pool = [c for c in cands if c is not first and c.delta_bic < -BIC_STRONG][:SECOND_ROUND]
+        best2 = None
+        for c in pool:
+            c2 = _fit_hypothesis(split, cal, calib, first.hypothesis + c.hypothesis, n_eff2, c.signature,
+                                 start_from=[first.result, c.result], reference=first.result)
+            if c2.accepted and (best2 is None or c2.delta_bic_all < best2.delta_bic_all):
+                best2 = c2
+        if best2 is not None:
+            chosen = [best2]
+    timings["name_s"] = time.perf_counter() - t_start
+
+    final = chosen[0].result if chosen else cal
+    # ---- generic route on what remains
+    gen = None
+    if generic:
+        from .generic import generic_route
+        gen = generic_route(split, data, cal, calib, n_eff, hyps)
+    timings["generic_s"] = time.perf_counter() - t_start
+    if gen and gen.get("significant") and not gen["in_library"]:
+        if chosen:
+            c = chosen[0]
+            k = len(c.result.free) - len(cal.free)
+            dbic_c = n_eff * math.log(c.result.rss_fit / cal.rss_fit) + k * math.log(n_eff)
+            gen["library_delta_bic"] = dbic_c
+            if gen["delta_bic"] < dbic_c - BIC_STRONG:
+                warnings.append(f"the best library effect ({c.name}) explains less than the generic term; "
+                                f"it is reported as an alternative, not as the cause")
+                gen["beats_library"] = True
+                chosen = []
+                final = cal
+        else:
+            gen["beats_library"] = True
+    elif gen:
+        gen["significant_but_library"] = bool(gen.get("significant"))
+        if chosen:
+            gen["significant"] = False  # a library effect already explains the residual
+
+    # ---- verdict
+    fit_table = _fit_table(split, {"nominal": (base, np.zeros(2)), "calibrated": (cal.params, cal.meas),
+                                   **({"augmented": (final.params, final.meas)} if chosen else {})},
+                           gen if (gen and gen.get("significant")) else None)
+    for c in chosen:
+        for name in c.result.at_bounds:
+            warnings.append(f"fitted {name} of '{c.name}' sits at its bound: the true value may lie beyond it")
+    verdict, headline = _verdict(chosen, calibration, gen, fit_table, located, plant)
+    report = Report(
+        source=str(rec.source or "recording"), validate_source=str(validate.source) if validate is not None else None,
+        verdict=verdict, headline=headline, fit_table=fit_table, calibration=calibration, located=located,
+        ranked=cands, chosen=chosen, generic=gen, warnings=warnings, timings=timings, n_eff=n_eff,
+    )
+    report.traces = {"split": split, "nominal": base, "calibrated": cal, "final": final, "residual": res,
+                     "masks": masks, "energy": energy}
+    timings["total_s"] = time.perf_counter() - t_start
+    if out_dir is not None:
+        from .report import write
+        write(report, Path(out_dir), figures=figures)
+        timings["total_s"] = time.perf_counter() - t_start
+    return report
+
+
+def _rank_key(c: Candidate):
+    # accepted (strong BIC on the fitting part, confirmed held out) first; then the BIC change over all the
+    # data, so that held-out evidence counts; the signature match breaks ties
+    return (not c.accepted, round(c.delta_bic_all, 0), -c.signature)
+
+
+def _fit_hypothesis(split: Split, cal: FitResult, calib, hyps: list[Hypothesis], n_eff: float, signature: float,
+                    start_from: list[FitResult] | None = None, reference: FitResult | None = None) -> Candidate:
+    reference = reference or cal
+    free = tuple(calib) + tuple(f for h in hyps for f in h.params)
+    model = Model(cal.params, free, cal.meas)
+    base_vals = dict(cal.values)
+    starts = []
+    if start_from:
+        merged = dict(base_vals)
+        for r in start_from:
+            merged.update({k: v for k, v in r.values.items() if k not in base_vals})
+        merged.update({k: v for k, v in start_from[0].values.items() if k in base_vals})
+        starts.append(model.theta_of(merged))
+        for h in hyps[len(hyps) - 1:]:
+            for s in h.starts:
+                starts.append(model.theta_of({**merged, **s}))
+    else:
+        for h in hyps:
+            for s in h.starts:
+                starts.append(model.theta_of({**base_vals, **s}))
+    res = fit(split, model, starts, max_nfev=30)
+    k = len(free) - len(reference.free)
+    dbic = n_eff * math.log(max(res.rss_fit, 1e-300) / reference.rss_fit) + k * math.log(n_eff)
+    gain_fit = 1 - res.rss_fit / reference.rss_fit
+    gain_held = 1 - res.rss_held / reference.rss_held
+    c = Candidate(list(hyps), res, dbic, gain_fit, gain_held, signature)
+    # evidence on all the data (fitting part and held out), for ranking the accepted ones
+    n_all = n_eff * (res.n_fit + res.n_held) / res.n_fit
+    c.delta_bic_all = n_all * math.log(max(res.rss_fit + res.rss_held, 1e-300) / (reference.rss_fit + reference.rss_held)) \
+        + k * math.log(n_all)
+    hs = split.sim_for("held")
+    f_ref = fits(hs, hs.simulate(reference.params[None, :], reference.meas[None, :] if np.any(reference.meas) else None), "held")
+    f_new = fits(hs, hs.simulate(res.params[None, :], res.meas[None, :] if np.any(res.meas) else None), "held")
+    c.fit_before, c.fit_after = f_ref, f_new
+    c.accepted = (dbic < -BIC_STRONG and gain_fit > MIN_GAIN and gain_held > MIN_GAIN
+                  and f_new["mean"] - f_ref["mean"] >= MIN_FIT_POINTS)
+    return c
+
+
+def _signatures(split: Split, cal: FitResult, calib, hyps, r_cal: np.ndarray) -> dict[str, float]:
+    """Score-test match of each hypothesis' sensitivity with the calibrated residual (0..1).
+
+    The sensitivity is the change of the simulated signals when the effect is
+    switched on at a small realistic magnitude, with the part the calibration
+    parameters could absorb projected out; the score is the |cosine| between
+    it and the residual.
+    """
+    # calibration sensitivities
+    model = Model(cal.params, calib, cal.meas)
+    th = model.theta_of(cal.values)
+    cands = np.repeat(th[None, :], len(th) + 1, axis=0)
+    cands[1:][np.arange(len(th)), np.arange(len(th))] += 1e-2
+    rr = evaluate(split, model, cands)
+    J = (rr[1:] - rr[0]).T
+    Q, _ = np.linalg.qr(J)
+    r = -r_cal  # measured - simulated
+    r_perp = r - Q @ (Q.T @ r)
+    out = {}
+    for h in hyps:
+        hm = Model(cal.params, h.params, cal.meas)
+        probe = hm.theta_of(h.probe)
+        rp = evaluate(split, hm, probe[None, :])[0]
+        s = rp - rr[0]
+        s_perp = s - Q @ (Q.T @ s)
+        den = np.linalg.norm(s_perp) * np.linalg.norm(r_perp)
+        out[h.name] = float(abs(np.dot(s_perp, r_perp)) / den) if den > 0 else 0.0
+    return out
+
+
+def _fit_table(split: Split, models: dict, gen: dict | None) -> dict:
+    table = {}
+    for name, (params, meas) in models.items():
+        table[name] = {}
+        for part in ("fit", "held"):
+            sim = split.sim_for(part)
+            out = sim.simulate(params[None, :], meas[None, :] if np.any(meas) else None)
+            table[name][part] = fits(sim, out, part)
+    if gen is not None and "fit_table" in gen:
+        table["generic"] = gen["fit_table"]
+    return table
+
+
+def _verdict(chosen, calibration, gen, table, located, plant) -> tuple[str, str]:
+    changed = [c for c in calibration if _significant_change(c)]
+    recal = ("after recalibrating " + ", ".join(c["text"] for c in changed)) if changed else "with the nominal parameters"
+    cal_h = table["calibrated"]["held"]["mean"]
+    where = _where_words(located)
+    if chosen:
+        c = chosen[0]
+        aug = table["augmented"]["held"]["mean"]
+        names = " and ".join(h.title for h in c.hypothesis)
+        head = (f"{where}: that is {names}; with {c.summary()} the held-out fit goes from "
+                f"{cal_h:.1f} % to {aug:.1f} % ({recal}).")
+        return "named", head
+    if gen and gen.get("significant"):
+        return "unknown_effect", (
+            f"{where}. No effect of the library explains it; the generic route finds {gen['equation']} "
+            f"({gen['mapped']}), raising the held-out fit from {cal_h:.1f} % to {gen['fit_table']['held']['mean']:.1f} %.")
+    if cal_h >= 80.0:
+        if changed:
+            return "recalibrated", (f"The model is adequate {recal}: the mismatch was a mis-set nominal value, "
+                                    f"not missing physics (held-out fit {cal_h:.1f} %).")
+        return "adequate", f"The model is adequate: no candidate effect improves the fit (held-out fit {cal_h:.1f} %)."
+    return "unexplained", (f"{where}, but neither the library nor the generic route explains it "
+                           f"(held-out fit {cal_h:.1f} % {recal}).")
+
+
+def _where_words(located) -> str:
+    share = located["signal_share"]
+    top = max(share, key=share.get)
+    words = loc.SIGNAL_WORDS[top]
+    regs = [r for r in located["regimes"] if r["enrichment"] > 1.3][:2]
+    if regs:
+        words += " is off mostly in " + " and ".join(
+            f"{r['regime']} ({100 * r['residual_share']:.0f} % of the error in {100 * r['time_share']:.0f} % of the time)"
+            for r in regs)
+    else:
+        words += " is off throughout the recording"
+    return words[0].upper() + words[1:]

@@ -1,0 +1,310 @@
+"""The generic route: estimate unknown inputs, sparse-regress them on physical features.
+
+1. Unknown-input estimate (equation error): at every sample, the model's own
+   right-hand side (:func:`sam.dynamics.rhs`, called, never copied) is evaluated
+   at the smoothed measured state; what the measured pressure rates and
+   acceleration need beyond it is a disturbance flow into chamber A (Q_dA), into
+   chamber B (Q_dB) and a disturbance force on the piston (F_d), each obtained
+   through the model's own sensitivity to those inputs.
+2. Sparse regression (sequentially thresholded least squares) of each
+   disturbance on physically meaningful features; the sparsity is chosen by BIC
+   with an effective sample size that accounts for smoothing.
+3. The selected terms are re-fitted on simulation error (the term is fed to the
+   model as a time-varying disturbance input) and kept only if they pass the
+   same BIC and held-out test as a library hypothesis.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from sam import P
+from sam.dynamics import N_DERIVED, N_STATES, derive, rhs
+
+from .data import Prepared
+from .fitting import FitResult, Model, Split, correlation_time, evaluate, fit
+from .library import Free
+from .simulation import SIGNALS, fits
+
+TARGETS = {"Q_dA": "m^3/s", "Q_dB": "m^3/s", "F_d": "N"}
+MAX_TERMS = 3
+
+
+@numba.njit(cache=True)
+def _rates(states, u, p, idx_dist, delta):
+    """Model rates ds/dt at each given state, and the sensitivity of ds/dt to a disturbance input."""
+    n = states.shape[0]
+    d = np.empty(N_DERIVED)
+    derive(p, d)
+    ds = np.empty(N_STATES)
+    ds2 = np.empty(N_STATES)
+    out = np.empty((n, N_STATES))
+    sens = np.empty((n, N_STATES))
+    q = p.copy()
+    q[idx_dist] += delta
+    for k in range(n):
+        rhs(states[k], u[k], p, d, ds)
+        rhs(states[k], u[k], q, d, ds2)
+        for j in range(N_STATES):
+            out[k, j] = ds[j]
+            sens[k, j] = (ds2[j] - ds[j]) / delta
+    return out, sens
+
+
+def estimate_disturbances(data: Prepared, params: np.ndarray, z: np.ndarray) -> dict[str, np.ndarray]:
+    """Equation-error estimates of Q_dA, Q_dB [m^3/s] and F_d [N] at every sample."""
+    sm = data.smooth
+    st = np.column_stack([sm["pA"], sm["pB"], data.x_s, data.dx_s, sm["x"], sm["v"], z])
+    st = np.ascontiguousarray(st)
+    u = np.ascontiguousarray(data.u)
+    out = {}
+    for name, col, meas, delta in (("Q_dA", 0, sm["dpA"], 1e-6), ("Q_dB", 1, sm["dpB"], 1e-6), ("F_d", 5, sm["a"], 100.0)):
+        rate, sens = _rates(st, u, params, int(P[name]), delta)
+        s = sens[:, col]
+        out[name] = np.where(np.abs(s) > 0, (meas - rate[:, col]) / np.where(s == 0, 1, s), 0.0)
+    return out
+
+
+def _ssqrt(x):
+    return np.sign(x) * np.sqrt(np.abs(x))
+
+
+def features(data: Prepared, p_S: float) -> dict[str, tuple[np.ndarray, str]]:
+    """Candidate terms: name -> (values on the sample grid, unit)."""
+    sm = data.smooth
+    pA, pB, v, x, xs = sm["pA"], sm["pB"], sm["v"], sm["x"], data.x_s
+    dp = pA - pB
+    sgn_v = np.tanh(v / 2e-3)
+    return {
+        "1": (np.ones_like(pA), "1"),
+        "p_A": (pA, "Pa"),
+        "p_B": (pB, "Pa"),
+        "(p_A - p_B)": (dp, "Pa"),
+        "sqrt|p_A|": (_ssqrt(pA), "Pa^0.5"),
+        "sqrt|p_B|": (_ssqrt(pB), "Pa^0.5"),
+        "sgn(dp) sqrt|p_A - p_B|": (_ssqrt(dp), "Pa^0.5"),
+        "sqrt|p_S - p_A|": (_ssqrt(p_S - pA), "Pa^0.5"),
+        "sqrt|p_S - p_B|": (_ssqrt(p_S - pB), "Pa^0.5"),
+        "v": (v, "m/s"),
+        "|v|": (np.abs(v), "m/s"),
+        "sgn v": (sgn_v, "1"),
+        "x": (x, "m"),
+        "x_s": (xs, "1"),
+        "|x_s|": (np.abs(xs), "1"),
+        "(p_A + p_B) sgn v": ((pA + pB) * sgn_v, "Pa"),
+        "x_s sqrt|p_A - p_B|": (xs * np.sqrt(np.abs(dp)), "Pa^0.5"),
+    }
+
+
+def _unit_of(target_unit: str, feat_unit: str) -> str:
+    if feat_unit == "1":
+        return target_unit
+    return f"{target_unit} per {feat_unit}"
+
+
+#: term forms -> (effect, in the library?)
+_FORMS = [
+    ({("Q_dA", "(p_A - p_B)"), ("Q_dB", "(p_A - p_B)")}, "laminar cylinder bypass leakage (library: bypass_leakage)", True),
+    ({("Q_dA", "sgn(dp) sqrt|p_A - p_B|"), ("Q_dB", "sgn(dp) sqrt|p_A - p_B|")},
+     "turbulent internal leakage A->B (the form of a leak fault K_int): not an effect of the library", False),
+    ({("Q_dA", "sqrt|p_A|")}, "turbulent external leakage out of chamber A (the form of a leak fault K_extA): not an effect of the library", False),
+    ({("Q_dB", "sqrt|p_B|")}, "turbulent external leakage out of chamber B (the form of a leak fault K_extB): not an effect of the library", False),
+    ({("Q_dA", "1")}, "a constant outflow from chamber A, as an external leak would cause: not an effect of the library", False),
+    ({("Q_dB", "1")}, "a constant outflow from chamber B, as an external leak would cause: not an effect of the library", False),
+    ({("Q_dA", "p_A")}, "laminar external leakage out of chamber A: not an effect of the library", False),
+    ({("Q_dB", "p_B")}, "laminar external leakage out of chamber B: not an effect of the library", False),
+    ({("F_d", "sgn v"), ("F_d", "|v|"), ("F_d", "v")}, "a friction change (library: friction_level)", True),
+    ({("F_d", "(p_A + p_B) sgn v")}, "pressure-dependent seal friction (library: pressure_friction)", True),
+    ({("F_d", "1"), ("F_d", "x")}, "a load force error (library: load_mass)", True),
+]
+
+
+def _map(terms: list[tuple[str, str]]) -> tuple[str, bool]:
+    keys = set(terms)
+    best, best_n = None, 0
+    for form, text, lib in _FORMS:
+        n = len(keys & form)
+        if n > best_n:
+            best, best_n = (text, lib), n
+    if best is None:
+        return "no known effect has this form: not an effect of the library", False
+    return best
+
+
+def stlsq(X: np.ndarray, y: np.ndarray, n_eff: float, max_terms: int = MAX_TERMS) -> np.ndarray:
+    """Sparse least squares: the BIC-best of greedy forward selections up to max_terms terms."""
+    n, m = X.shape
+    norms = np.linalg.norm(X, axis=0)
+    norms[norms == 0] = 1
+    Xn = X / norms
+    rss0 = float(np.dot(y, y))
+    best_coef, best_bic = np.zeros(m), n_eff * math.log(rss0 / n + 1e-300)
+    chosen: list[int] = []
+    for _ in range(max_terms):
+        trial = None
+        for j in range(m):
+            if j in chosen:
+                continue
+            cols = chosen + [j]
+            c, *_ = np.linalg.lstsq(Xn[:, cols], y, rcond=None)
+            rss = float(np.sum((y - Xn[:, cols] @ c) ** 2))
+            if trial is None or rss < trial[0]:
+                trial = (rss, j, c)
+        if trial is None:
+            break
+        rss, j, c = trial
+        chosen.append(j)
+        bic = n_eff * math.log(rss / n + 1e-300) + len(chosen) * math.log(n_eff)
+        if bic < best_bic - 10:
+            best_bic = bic
+            best_coef = np.zeros(m)
+            best_coef[chosen] = c
+    return best_coef / norms
+
+
+PROBE_RMS = {"Q_dA": 1e-6, "Q_dB": 1e-6, "F_d": 100.0}  # m^3/s, N: small test magnitudes of each term
+
+
+def _term_model(final: FitResult, calib, terms, coefs, units, p_S: float):
+    """A model with the calibration parameters and the coefficients of ``terms`` free."""
+    coef_free = tuple(
+        Free(f"c_{i}", -max(abs(c), 1e-30) * 30, max(abs(c), 1e-30) * 30, False, u, f"{t[0]}: {t[1]}")
+        for i, (t, c, u) in enumerate(zip(terms, coefs, units))
+    )
+    off = len(calib)
+    cache = {}
+
+    def tv(thetas, sim):
+        key = id(sim)
+        if key not in cache:
+            cache[key] = features(sim.data, p_S)
+        fs = cache[key]
+        m = thetas.shape[0]
+        vals = {k: np.zeros((m, sim.data.n)) for k in {t[0] for t in terms}}
+        for i, (tname, fname) in enumerate(terms):
+            coef = np.array([coef_free[i].to_value(th) for th in thetas[:, off + i]])
+            vals[tname] += coef[:, None] * fs[fname][0][None, :]
+        return vals
+
+    model = Model(final.params, tuple(calib) + coef_free, final.meas, tv=tv)
+    start = model.theta_of(dict(final.values))
+    start[off:] = [f.to_theta(c) for f, c in zip(coef_free, coefs)]
+    return model, start
+
+
+def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: float, hyps,
+                  n_fit: int = 4, max_terms: int = 2) -> dict:
+    """Run the generic route on the residual of ``final`` (calibrated model); JSON-able dict ('_*' keys excepted).
+
+    1. The unknown inputs Q_dA, Q_dB, F_d are estimated by equation error (reported).
+    2. Every candidate term (input, feature) is screened by a score test on
+       simulation error: the term is fed to the model at a small magnitude as a
+       time-varying input (one batch for all terms), the part the calibration
+       parameters could absorb is projected out, and the drop of squared error a
+       Gauss-Newton step would give is computed.
+    3. The best few are fitted on simulation error (with the calibration
+       parameters free); the BIC-best is kept; then a second term is tried.
+    """
+    fsim = split.fit_sim
+    p_S = final.params[P.p_S]
+    full = fsim.simulate(final.params[None, :], full=True, channels=("p_A", "p_B", "x", "z"))
+    z = np.zeros(data.n)
+    for j, s in enumerate(fsim.seg.starts):
+        z[s:s + fsim.seg.length] = full["z"][0, j]
+    dist = estimate_disturbances(data, final.params, z)
+    feats = features(data, p_S)
+    out = {"disturbance_rms": {k: float(np.sqrt(np.mean(dist[k] ** 2))) for k in TARGETS}, "terms": [],
+           "significant": False, "equation": "no term", "mapped": "", "in_library": False}
+    # --- score test of every term, in one batch
+    cands = []
+    for tname in TARGETS:
+        for fname, (fv, funit) in feats.items():
+            rms = float(np.sqrt(np.mean(fv ** 2)))
+            if rms == 0:
+                continue
+            cands.append(((tname, fname), PROBE_RMS[tname] / rms, _unit_of(TARGETS[tname], funit)))
+    base_model = Model(final.params, tuple(calib), final.meas)
+    th0 = base_model.theta_of(final.values)
+    rr = evaluate(split, base_model, np.repeat(th0[None, :], len(th0) + 1, axis=0)
+                  + np.vstack([np.zeros(len(th0)), 1e-2 * np.eye(len(th0))]))
+    r0 = rr[0]
+    Q, _ = np.linalg.qr((rr[1:] - r0).T)
+    ref = Model(final.params, (), final.meas)
+    m = len(cands)
+
+    def tv_all(thetas, sim):
+        fs = features(sim.data, p_S)
+        vals = {k: np.zeros((m, sim.data.n)) for k in TARGETS}
+        for i, ((tname, fname), c, _) in enumerate(cands):
+            vals[tname][i] = c * fs[fname][0]
+        return vals
+
+    probe = Model(final.params, (), final.meas, tv=tv_all)
+    rp = evaluate(split, probe, np.zeros((m, 0)))
+    S_ = (rp - r0[None, :]).T
+    S_perp = S_ - Q @ (Q.T @ S_)
+    r_perp = -(r0 - Q @ (Q.T @ r0))
+    num = (S_perp.T @ r_perp) ** 2
+    den = np.sum(S_perp ** 2, axis=0)
+    score = np.where(den > 0, num / np.where(den > 0, den, 1), 0.0) / max(float(r0 @ r0), 1e-300)
+    order = np.argsort(-score)
+    out["screened"] = [{"term": f"{cands[i][0][0]} ~ {cands[i][0][1]}", "score": float(score[i])} for i in order[:8]]
+    ref_fit = float(np.sum(evaluate(split, ref, np.zeros((1, 0)), "fit") ** 2))
+    ref_held = float(np.sum(evaluate(split, ref, np.zeros((1, 0)), "held") ** 2))
+    hs = split.sim_for("held")
+    ref_fits = fits(hs, hs.simulate(final.params[None, :], final.meas[None, :] if np.any(final.meas) else None), "held")
+
+    def try_terms(sel):
+        coefs = []
+        for i in sel:
+            (t, c, u) = cands[i]
+            step = float(S_perp[:, i] @ r_perp) / den[i] if den[i] > 0 else 1.0
+            coefs.append(c * (step if step != 0 else 1.0))
+        model, start = _term_model(final, calib, [cands[i][0] for i in sel], coefs, [cands[i][2] for i in sel], p_S)
+        res = fit(split, model, [start], max_nfev=20)
+        dbic = n_eff * math.log(max(res.rss_fit, 1e-300) / ref_fit) + len(sel) * math.log(n_eff)
+        return dbic, res, model, sel
+
+    best = None
+    for i in order[:n_fit]:
+        r = try_terms([int(i)])
+        if best is None or r[0] < best[0]:
+            best = r
+    if best is None:
+        return out
+    if max_terms > 1:
+        for i in order[:3]:
+            if int(i) in best[3]:
+                continue
+            r = try_terms(best[3] + [int(i)])
+            if r[0] < best[0] - 10 and r[1].rss_held < best[1].rss_held * 0.95:
+                best = r
+                break
+    dbic, res, model, sel = best
+    gain_fit, gain_held = 1 - res.rss_fit / ref_fit, 1 - res.rss_held / ref_held
+    th = model.theta_of(res.values)
+    parts = {}
+    for part in ("fit", "held"):
+        sim = split.sim_for(part)
+        pr, meas = model.build(th[None, :])
+        o = sim.simulate(pr, meas if np.any(meas) else None, time_varying=model.tv(th[None, :], sim))
+        parts[part] = fits(sim, o, part)
+    eq = []
+    for j, i in enumerate(sel):
+        f = model.free[len(calib) + j]
+        t = cands[i][0]
+        eq.append(f"{t[0]} = {res.values[f.name]:+.3g} {f.unit} x {t[1]}")
+        out["terms"].append({"target": t[0], "feature": t[1], "coefficient": res.values[f.name], "unit": f.unit,
+                             "at_bound": f.name in res.at_bounds})
+    mapped, in_lib = _map([cands[i][0] for i in sel])
+    out.update({
+        "equation": "; ".join(eq), "mapped": mapped, "in_library": in_lib, "delta_bic": dbic,
+        "gain_fit": gain_fit, "gain_held": gain_held, "fit_table": parts, "rss_fit": res.rss_fit,
+        "significant": bool(dbic < -10 and gain_fit > 0.05 and gain_held > 0.05
+                            and parts["held"]["mean"] - ref_fits["mean"] >= 0.5),
+        "_model": (model, th),
+    })
+    return out

@@ -1,0 +1,196 @@
+"""The library of candidate effects: hypotheses about physics the nominal model leaves out.
+
+Each hypothesis names the parameters it frees. Every one of them is either a
+field of :class:`sam.params.Effects` / a plant parameter (the physics lives in
+``sam``'s one model, switched on through that extension point) or a
+measurement-side parameter (sensor lag, time delay) applied to the simulated
+signals. Nothing here writes an equation of the model.
+
+Bounds are wide on purpose (realistic magnitudes span decades); log-scaled
+parameters are searched in log10 space from a grid of starts.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from sam import Plant
+
+
+@dataclass(frozen=True)
+class Free:
+    """One free parameter: a flat plant name (or a measurement-side name), its box and scaling."""
+
+    name: str
+    lo: float
+    hi: float
+    log: bool = True
+    unit: str = ""
+    label: str = ""  # how an engineer says it
+
+    def to_theta(self, value: float) -> float:
+        value = min(max(value, self.lo), self.hi)
+        return math.log10(value) if self.log else value / self.span
+
+    def to_value(self, theta: float) -> float:
+        return 10.0 ** theta if self.log else theta * self.span
+
+    @property
+    def span(self) -> float:
+        return max(abs(self.lo), abs(self.hi))
+
+    @property
+    def theta_bounds(self) -> tuple[float, float]:
+        return self.to_theta(self.lo), self.to_theta(self.hi)
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    name: str
+    title: str  # engineer's words
+    params: tuple[Free, ...]
+    description: str
+    shows: str  # the signature: where it shows in the data
+    starts: tuple[dict[str, float], ...] = field(default_factory=tuple)  # grid of starting values
+    probe: dict[str, float] = field(default_factory=dict)  # a small realistic magnitude for the signature
+
+    def summary(self, values: dict[str, float]) -> str:
+        parts = []
+        for f in self.params:
+            v = values[f.name]
+            parts.append(f"{f.label or f.name} = {format_value(v, f.unit)}")
+        return ", ".join(parts)
+
+
+def format_value(v: float, unit: str) -> str:
+    if unit == "%":
+        return f"{100 * v:.3g} %"
+    if unit == "MPa":
+        return f"{v / 1e6:.3g} MPa"
+    if unit == "L/min":
+        return f"{v * 6e4:.3g} L/min"
+    if unit == "ms":
+        return f"{v * 1e3:.3g} ms"
+    if unit == "L/min/MPa":
+        return f"{v * 6e4 * 1e6:.3g} L/min per MPa"
+    return f"{v:.4g} {unit}".strip()
+
+
+def calibration_params(plant: Plant) -> tuple[Free, ...]:
+    """The nominal parameters calibrated first, as the paper's GSA ranks them (Table 2):
+    the valve's nominal flows (with fixed nominal pressure drops the flow gain
+    K_v = Q_N / sqrt(dp_N) is what matters), the bulk modulus and the spool offset."""
+    v = plant.valve
+    out = [
+        Free(name, getattr(v, name) / 3, getattr(v, name) * 3, True, "L/min", f"nominal flow {name[4:6]}")
+        for name in ("Q_N_PA", "Q_N_BT", "Q_N_PB", "Q_N_AT")
+    ]
+    out.append(Free("B_eff", plant.fluid.B_eff / 5, plant.fluid.B_eff * 4, True, "MPa", "bulk modulus"))
+    out.append(Free("offset", -0.05, 0.05, False, "", "spool offset"))
+    return tuple(out)
+
+
+def library(plant: Plant) -> tuple[Hypothesis, ...]:
+    """The candidate effects for this plant (bounds scale with its nominal values)."""
+    Q_N = max(plant.valve.Q_N_PA, plant.valve.Q_N_PB)
+    f = plant.friction
+    m_L = plant.boom.m_L
+    return (
+        Hypothesis(
+            "entrained_air", "entrained air (pressure-dependent bulk modulus)",
+            (Free("air_fraction", 1e-5, 0.1, True, "%", "free air at atmospheric pressure"),),
+            "Free air in the oil makes the fluid soft at low pressure: the effective bulk modulus falls "
+            "steeply below a few MPa.",
+            "pressure transients lag and ring less at low chamber pressure; worse in the low-pressure chamber",
+            starts=tuple({"air_fraction": a} for a in (1e-4, 1e-3, 5e-3, 2e-2)),
+            probe={"air_fraction": 2e-3},
+        ),
+        Hypothesis(
+            "hose_compliance", "hose or line compliance",
+            (Free("C_hose", 1e-15, 1e-10, True, "m^3/Pa", "hose compliance per chamber"),),
+            "Flexible hoses add a capacitance to each chamber that does not scale with the chamber volume.",
+            "slower pressure build-up in every transient, most where the chamber volume is small (near the stroke ends)",
+            starts=tuple({"C_hose": c} for c in (1e-13, 5e-13, 2e-12, 1e-11)),
+            probe={"C_hose": 5e-13},
+        ),
+        Hypothesis(
+            "spool_lap", "valve spool overlap / underlap (deadband)",
+            (Free("lap", -0.15, 0.15, False, "", "lap (+ overlap, - underlap), fraction of travel"),),
+            "A spool overlap is a deadband around null; an underlap opens all four edges a little around null.",
+            "mismatch concentrated where the spool is near null and at velocity reversals",
+            starts=tuple({"lap": a} for a in (-0.04, -0.01, 0.01, 0.04)),
+            probe={"lap": 0.02},
+        ),
+        Hypothesis(
+            "flow_saturation", "valve flow saturation",
+            (Free("Q_sat", Q_N * 0.05, Q_N * 2.5, True, "L/min", "flow limit per notch"),),
+            "Each metering notch passes at most Q_sat, e.g. a pilot-stage or port limit.",
+            "velocity and pressures flatten at high flow demand (large spool opening)",
+            starts=tuple({"Q_sat": Q_N * a} for a in (0.2, 0.4, 0.7, 1.0, 1.5)),
+            probe={"Q_sat": Q_N * 0.6},
+        ),
+        Hypothesis(
+            "supply_droop", "supply pressure droop with flow (pump limit, relief, accumulator)",
+            (Free("R_supply", 1e7, 1e12, True, "Pa s/m^3", "supply droop per flow"),),
+            "The supply pressure falls with the flow drawn.",
+            "inflow-side chamber pressure falls at high flow demand; velocity lower at high flow",
+            starts=tuple({"R_supply": r} for r in (3e8, 2e9, 1e10, 5e10)),
+            probe={"R_supply": 3e9},
+        ),
+        Hypothesis(
+            "bypass_leakage", "laminar cylinder bypass leakage (A to B)",
+            (Free("K_bypass", 1e-15, 1e-9, True, "L/min/MPa", "bypass conductance"),),
+            "Flow past the piston seal, proportional to the pressure difference.",
+            "pressure difference collapses when the valve is near null; velocity drift under load",
+            starts=tuple({"K_bypass": k} for k in (1e-13, 1e-12, 5e-12, 3e-11)),
+            probe={"K_bypass": 2e-12},
+        ),
+        Hypothesis(
+            "pressure_friction", "pressure-dependent seal friction",
+            (Free("k_fric_p", 1e-8, 1e-3, True, "m^2", "seal friction per pressure (F_C + k (p_A + p_B))"),),
+            "Seals press harder at high chamber pressure: Coulomb/static friction grows with p_A + p_B.",
+            "force balance off at high pressure level, worst at stick-slip and reversals",
+            starts=tuple({"k_fric_p": k} for k in (1e-6, 1e-5, 5e-5, 2e-4)),
+            probe={"k_fric_p": 5e-5},
+        ),
+        Hypothesis(
+            "friction_level", "changed Coulomb / Stribeck / viscous friction",
+            (Free("F_C", max(f.F_C / 20, 10.0), f.F_C * 20, True, "N", "Coulomb friction"),
+             Free("F_S", max(f.F_S / 20, 10.0), f.F_S * 20, True, "N", "static friction"),
+             Free("b", 1.0, max(f.b, 100.0) * 20, True, "N s/m", "viscous friction")),
+            "The seal friction level differs from the nominal plant.",
+            "force balance off when moving (Coulomb, viscous) or at breakaway (static); reversals",
+            starts=tuple({"F_C": f.F_C * a, "F_S": f.F_S * a, "b": max(f.b, 100.0) * c}
+                         for a in (0.3, 1.0, 3.0) for c in (0.3, 1.0, 3.0)),
+            probe={"F_C": f.F_C * 2, "F_S": f.F_S * 2},
+        ),
+        Hypothesis(
+            "load_mass", "load mass or inertia error",
+            (Free("m_L", 1.0, max(m_L, 100.0) * 6, True, "kg", "load mass"),),
+            "The load on the boom differs from the plant file: gravity load and inertia both change.",
+            "steady load pressure (p_A A_A - p_B A_B) off everywhere, more so in acceleration",
+            starts=tuple({"m_L": max(m_L, 100.0) * a} for a in (0.3, 0.7, 1.4, 2.5)),
+            probe={"m_L": max(m_L, 100.0) * 1.2},
+        ),
+        Hypothesis(
+            "sensor_lag", "sensor lag (first-order)",
+            (Free("tau_sensor", 1e-4, 0.2, True, "ms", "sensor time constant"),),
+            "The sensors (or their filters) respond with a first-order lag.",
+            "every measured signal trails the simulation in fast transients",
+            starts=tuple({"tau_sensor": t} for t in (1e-3, 5e-3, 2e-2)),
+            probe={"tau_sensor": 5e-3},
+        ),
+        Hypothesis(
+            "time_delay", "time delay (transport / logging)",
+            (Free("delay_sensor", 1e-4, 0.15, True, "ms", "time delay"),),
+            "The measured signals are delayed with respect to the input (valve electronics, logger).",
+            "every signal is shifted in time; largest mismatch at the fastest input changes",
+            starts=tuple({"delay_sensor": t} for t in (2e-3, 1e-2, 4e-2)),
+            probe={"delay_sensor": 5e-3},
+        ),
+    )
+
+
+def by_name(plant: Plant) -> dict[str, Hypothesis]:
+    return {h.name: h for h in library(plant)}

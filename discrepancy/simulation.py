@@ -1,0 +1,248 @@
+"""Simulate a recording with many candidate parameter sets at once.
+
+The recording is cut into segments (1 s by default); each segment is simulated
+from the measured state at its start (pressures, position, velocity from the
+smoothed recording; spool from the model's own spool dynamics) with the
+recorded input. All segments of all candidates form one batch of
+:func:`sam.simulate_batch`, so a finite-difference Jacobian or a grid of
+starting values costs one compiled call. Segments keep an open-loop integrator
+(the piston position) from drifting away over a long recording, which would
+otherwise dominate every comparison.
+
+Measurement-side effects (sensor lag, time delay) are applied to the simulated
+signals, never to the model: they are what the sensors do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+import numba
+
+from sam import P, S, simulate_batch
+from sam.dynamics import N_DERIVED, N_STATES, derive, rhs
+from sam.friction import seal_loaded, stribeck
+
+
+@numba.njit(cache=True)
+def _bristle_for_balance(x0, u0, params, a_meas, z_max):
+    """Bristle deflection z that makes the model's acceleration match the measured one at each start state.
+
+    The model's acceleration is affine in z (LuGre), so two evaluations of the model's own
+    right-hand side give it; z is kept within the bristles' reach |z| <= z_max.
+    """
+    n = x0.shape[0]
+    d = np.empty(N_DERIVED)
+    ds = np.empty(N_STATES)
+    s = np.empty(N_STATES)
+    for i in range(n):
+        derive(params[i], d)
+        for j in range(N_STATES):
+            s[j] = x0[i, j]
+        s[6] = 0.0
+        rhs(s, u0[i], params[i], d, ds)
+        a0 = ds[5]
+        s[6] = 1e-6
+        rhs(s, u0[i], params[i], d, ds)
+        slope = (ds[5] - a0) / 1e-6
+        if slope != 0.0:
+            z = (a_meas[i] - a0) / slope
+            x0[i, 6] = min(max(z, -z_max[i]), z_max[i])
+
+from .data import Prepared
+
+SIGNALS = ("pA", "pB", "x")
+_CHANNEL = {"pA": "p_A", "pB": "p_B", "x": "x"}
+#: Measurement-side parameters: not plant parameters, applied to the simulated signals.
+MEAS_PARAMS = ("tau_sensor", "delay_sensor")
+#: Floors of the per-signal scales (a signal that barely moves is weighted by its noise, not by zero).
+SCALE_FLOOR = {"pA": 1e5, "pB": 1e5, "x": 2e-3}
+
+
+def first_order_lag(y: np.ndarray, dt: float, tau_s: float) -> np.ndarray:
+    """First-order sensor lag along the last axis, started at rest at the first sample."""
+    if tau_s <= 0:
+        return y
+    a = np.exp(-dt / tau_s)
+    zi = (a * y[..., :1])
+    out, _ = lfilter([1 - a], [1, -a], y, axis=-1, zi=zi)
+    return out
+
+
+def time_delay(y: np.ndarray, dt: float, delay_s: float) -> np.ndarray:
+    """y(t - delay) along the last axis, fractional delays by linear interpolation; holds the first sample."""
+    if delay_s <= 0:
+        return y
+    n = y.shape[-1]
+    tq = np.arange(n) - delay_s / dt
+    i0 = np.clip(np.floor(tq).astype(int), 0, n - 1)
+    i1 = np.clip(i0 + 1, 0, n - 1)
+    w = np.clip(tq - np.floor(tq), 0, 1)
+    w = np.where(tq < 0, 0.0, w)
+    return y[..., i0] * (1 - w) + y[..., i1] * w
+
+
+@dataclass
+class Segments:
+    starts: np.ndarray  # sample index of each segment start
+    length: int  # samples per segment
+    held_out: np.ndarray  # bool per segment
+    eval_idx: np.ndarray  # sample offsets within a segment that enter residuals
+
+
+class SegmentSimulator:
+    """Simulates :class:`Prepared` data segment by segment for batches of parameter vectors."""
+
+    def __init__(self, data: Prepared, seg_s: float = 1.0, skip_s: float = 0.03, max_eval: int = 5000,
+                 held_out_every: int = 3, all_held_out: bool = False):
+        self.data = data
+        n = data.n
+        L = max(10, int(round(seg_s / data.dt)))
+        n_seg = max(1, n // L)
+        if n_seg < 3 and not all_held_out:
+            L = n // 3
+            n_seg = 3
+        starts = np.arange(n_seg) * L
+        if all_held_out:
+            held = np.ones(n_seg, bool)
+        else:
+            held = (np.arange(n_seg) % held_out_every) == held_out_every - 1
+        skip = min(L // 4, int(round(skip_s / data.dt)))
+        total = n_seg * (L - skip)
+        stride = max(1, int(np.ceil(total / max_eval)))
+        self.seg = Segments(starts, L, held, np.arange(skip, L, stride))
+        self.scale = {
+            k: max(float(np.std(data.y[k])), SCALE_FLOOR[k]) for k in SIGNALS
+        }
+        # measured signals at the evaluation points: (n_seg, n_eval)
+        idx = self.sample_index()
+        self.meas = {k: data.y[k][idx] for k in SIGNALS}
+        self.mask = {k: data.valid[k][idx] for k in SIGNALS}
+        # input per segment, with sub-steps
+        uu = np.stack([data.u[s:s + L] for s in starts])
+        self.u_seg = np.repeat(uu, data.n_sub, axis=1)
+        self.record_at = np.arange(0, L * data.n_sub, data.n_sub)
+
+    # ------------------------------------------------------------------ helpers
+    def sample_index(self) -> np.ndarray:
+        """(n_seg, n_eval) sample indices of the evaluation points."""
+        return self.seg.starts[:, None] + self.seg.eval_idx[None, :]
+
+    def segment_mask(self, part: str) -> np.ndarray:
+        if part == "fit":
+            return ~self.seg.held_out
+        if part == "held":
+            return self.seg.held_out
+        return np.ones_like(self.seg.held_out)
+
+    def initial_states(self, params: np.ndarray) -> np.ndarray:
+        """(m * n_seg, 7) initial states for m parameter vectors."""
+        d, st = self.data, self.seg.starts
+        sm = d.smooth
+        base = np.zeros((len(st), 7))
+        base[:, S.p_A] = sm["pA"][st]
+        base[:, S.p_B] = sm["pB"][st]
+        base[:, S.x] = sm["x"][st]
+        base[:, S.v] = sm["v"][st]
+        base[:, S.x_s] = d.x_s[st]
+        base[:, S.dx_s] = d.dx_s[st]
+        m = params.shape[0]
+        x0 = np.tile(base, (m, 1))
+        # bristle deflection at its steady state for the segment's velocity
+        pr = np.repeat(params, len(st), axis=0)
+        v = x0[:, S.v]
+        FC = seal_loaded(pr[:, P.F_C], x0[:, S.p_A], x0[:, S.p_B], pr[:, P.k_fric_p])
+        FS = seal_loaded(pr[:, P.F_S], x0[:, S.p_A], x0[:, S.p_B], pr[:, P.k_fric_p])
+        g = stribeck(v, FC, FS, pr[:, P.v_s])
+        x0[:, S.z] = np.sign(v) * g / pr[:, P.sigma_0]
+        # where the piston is (nearly) still the bristles hold whatever the force balance needs
+        still = np.abs(v) < 5 * pr[:, P.v_s]
+        if np.any(still):
+            a = np.tile(sm["a"][st], m)
+            u0 = np.tile(d.u[st], m)
+            z_max = np.maximum(FC, FS) / pr[:, P.sigma_0]
+            xs = np.ascontiguousarray(x0[still])
+            _bristle_for_balance(xs, np.ascontiguousarray(u0[still]), np.ascontiguousarray(pr[still]),
+                                 np.ascontiguousarray(a[still]), np.ascontiguousarray(z_max[still]))
+            x0[still] = xs
+        return x0
+
+    # ------------------------------------------------------------------ simulate
+    def simulate(self, params: np.ndarray, meas: np.ndarray | None = None, *, full: bool = False,
+                 time_varying: dict[str, np.ndarray] | None = None,
+                 channels: tuple[str, ...] = ("p_A", "p_B", "x")) -> dict[str, np.ndarray]:
+        """Simulated signals for m parameter vectors.
+
+        Args:
+            params: (m, len(P)).
+            meas: (m, 2) sensor lag tau [s] and delay [s] per candidate, or None.
+            full: return every sample of each segment rather than the evaluation points.
+            time_varying: name -> (m, n_samples) values on the recording's sample grid.
+        Returns: signal -> (m, n_seg, n_eval or L).
+        """
+        params = np.atleast_2d(params)
+        m = params.shape[0]
+        n_seg, L = len(self.seg.starts), self.seg.length
+        P_all = np.repeat(params, n_seg, axis=0)
+        x0 = self.initial_states(params)
+        u = np.tile(self.u_seg, (m, 1))
+        tv = None
+        if time_varying:
+            tv = {}
+            for k, vals in time_varying.items():
+                vals = np.atleast_2d(vals)
+                segs = np.stack([vals[:, s:s + L] for s in self.seg.starts], axis=1)  # (m', n_seg, L)
+                segs = np.broadcast_to(segs, (m, n_seg, L)).reshape(m * n_seg, L)
+                tv[k] = np.repeat(segs, self.data.n_sub, axis=1)
+        res = simulate_batch(P_all, u, self.data.dt / self.data.n_sub, x0=x0, time_varying=tv,
+                             record_at=self.record_at, channels=channels)
+        out = {}
+        names = {"p_A": "pA", "p_B": "pB", "x": "x"}
+        for ch in channels:
+            y = res[ch].reshape(m, n_seg, L)
+            key = names.get(ch, ch)
+            if meas is not None and key in SIGNALS:
+                y = y.copy()
+                for i in range(m):
+                    tau, delay = meas[i]
+                    if tau > 0:
+                        y[i] = first_order_lag(y[i], self.data.dt, tau)
+                    if delay > 0:
+                        y[i] = time_delay(y[i], self.data.dt, delay)
+            out[key] = y if full else y[:, :, self.seg.eval_idx]
+        self.last_cavitated = res.cavitated.reshape(m, n_seg).any(axis=1)
+        return out
+
+    # ------------------------------------------------------------------ residuals
+    def residuals(self, sim: dict[str, np.ndarray], part: str = "fit") -> np.ndarray:
+        """Weighted residuals (m, n_res): (simulated - measured) / scale, stacked over signals."""
+        segs = self.segment_mask(part)
+        parts = []
+        for k in SIGNALS:
+            r = (sim[k][:, segs, :] - self.meas[k][None, segs, :]) / self.scale[k]
+            r = np.where(self.mask[k][None, segs, :], r, 0.0)
+            parts.append(r.reshape(r.shape[0], -1))
+        return np.concatenate(parts, axis=1)
+
+
+def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
+    """MATLAB's NRMSE fit: 100 (1 - ||y - yhat|| / ||y - mean(y)||)."""
+    y, yhat = np.ravel(y), np.ravel(yhat)
+    den = np.linalg.norm(y - y.mean())
+    if den == 0:
+        return float("nan")
+    return float(100.0 * (1.0 - np.linalg.norm(y - yhat) / den))
+
+
+def fits(simulator: SegmentSimulator, sim: dict[str, np.ndarray], part: str, i: int = 0) -> dict[str, float]:
+    """Per-signal fit % of candidate i on a part ('fit', 'held', 'all')."""
+    segs = simulator.segment_mask(part)
+    out = {}
+    for k in SIGNALS:
+        msk = simulator.mask[k][segs]
+        out[k] = fit_percent(simulator.meas[k][segs][msk], sim[k][i][segs][msk])
+    out["mean"] = float(np.mean([out[k] for k in SIGNALS]))
+    return out

@@ -1,0 +1,132 @@
+"""``samfdi fdi replay | signatures | tune``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from sam.errors import UserError
+
+
+def add_commands(subparsers) -> None:
+    p = subparsers.add_parser("fdi", help="fault detection and isolation with the augmented-state UKF")
+    sub = p.add_subparsers(dest="fdi_command", metavar="SUBCOMMAND", required=True)
+
+    r = sub.add_parser("replay", help="filter a recording and diagnose it")
+    r.add_argument("recording", help="recording file (.csv or .mat, see recording-format.md)")
+    r.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
+    r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--thresholds", help="thresholds.toml from `samfdi fdi thresholds` (default: the shipped one)")
+    r.add_argument("--baseline", help="healthy reference recording of the same machine: its estimates are the "
+                   "baseline the change test compares against (default: the first second of this recording)")
+    r.add_argument("--force", action="store_true", help="overwrite existing output files")
+    r.add_argument("--drop-out-of-range", action="store_true",
+                   help="treat pressure samples outside 0-25 MPa as missing instead of refusing the file")
+    r.set_defaults(func=_replay)
+
+    s = sub.add_parser("signatures", help="fault signature tables (CSV, Markdown, heat map)")
+    s.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
+    s.add_argument("--out", required=True, help="output folder")
+    s.add_argument("--force", action="store_true")
+    s.set_defaults(func=_signatures)
+
+    g = sub.add_parser("thresholds", help="thresholds from the leakage and nuisance Sobol' studies (prints them)")
+    g.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
+    g.add_argument("--n-leak", type=int, default=16, help="base sample size of the leakage GSA (power of 2)")
+    g.add_argument("--n-nuisance", type=int, default=32, help="base sample size of the nuisance GSA (power of 2)")
+    g.add_argument("--workers", type=int, default=1, help="local worker processes")
+    g.add_argument("--out", required=True, help="output folder: thresholds.toml, thresholds.md, thresholds_gsa.json")
+    g.set_defaults(func=_thresholds)
+
+    t = sub.add_parser("tune", help="Monte Carlo detection metrics on held-out runs (resumable)")
+    t.add_argument("--thresholds", help="thresholds.toml (default: the shipped one)")
+    t.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
+    t.add_argument("--runs", type=int, default=100, help="healthy runs (fault runs: runs/5 per type and size)")
+    t.add_argument("--workers", type=int, default=1, help="local worker processes (dask)")
+    t.add_argument("--scheduler", help="dask scheduler address, e.g. tcp://host:8786")
+    t.add_argument("--out", required=True, help="output folder (re-run the same command to resume)")
+    t.set_defaults(func=_tune)
+
+
+def _plant(args):
+    from sam import load_plant
+    return load_plant(args.plant)
+
+
+def _load_thresholds(path):
+    from .detect import Thresholds
+
+    if not path:
+        return Thresholds.shipped()
+    try:
+        return Thresholds.load(path)
+    except (OSError, ValueError, TypeError) as exc:
+        raise UserError(f"{path}: not a thresholds file from `samfdi fdi thresholds`: {exc}") from None
+
+
+def _thresholds(args) -> int:
+    from .thresholds import compute_thresholds, describe, write_thresholds
+
+    for name, n in (("--n-leak", args.n_leak), ("--n-nuisance", args.n_nuisance)):
+        if n < 4:
+            raise UserError(f"{name}: need at least 4, got {n}")
+    th, report = compute_thresholds(_plant(args), N_leak=args.n_leak, N_nuisance=args.n_nuisance,
+                                    workers=args.workers)
+    print(describe(th))
+    for p in write_thresholds(th, report, Path(args.out)):
+        print(f"wrote {p}")
+    return 0
+
+
+def _replay(args) -> int:
+    from sam import read_recording
+
+    from .detect import Thresholds
+    from .replay import replay_recording
+
+    plant = _plant(args)
+    rec = read_recording(args.recording)
+    th = _load_thresholds(args.thresholds)
+    base = read_recording(args.baseline) if args.baseline else None
+    diag = replay_recording(rec, plant, args.out, force=args.force, thresholds=th,
+                            drop_out_of_range=args.drop_out_of_range, baseline=base)
+    line = f"{diag.status}"
+    if diag.isolated:
+        line += ": " + ", ".join(
+            f"{h} {diag.size[h]['value']:.3g} {diag.size[h]['unit']} (alarm t = {diag.alarms[h]:.3f} s)"
+            for h in diag.isolated)
+    print(line)
+    if diag.filter_health.get("nan_samples"):
+        print(f"predicted through {diag.filter_health['nan_samples']} sample(s) with missing measurements")
+    print(f"wrote {Path(args.out)}/estimates.csv, residuals.csv, diagnosis.json, replay.png")
+    return 0
+
+
+def _signatures(args) -> int:
+    from .signatures import signature_table, write_signatures
+
+    out = Path(args.out)
+    existing = [f for f in ("signatures.csv", "signatures.md", "signatures.png") if (out / f).exists()]
+    if existing and not args.force:
+        raise UserError(f"{out}: already holds {', '.join(existing)}; use --force to overwrite")
+    rows = signature_table(_plant(args))
+    for p in write_signatures(rows, out):
+        print(f"wrote {p}")
+    return 0
+
+
+def _tune(args) -> int:
+    from .tune import run_tune
+
+    if args.runs < 5:
+        raise UserError(f"--runs: need at least 5 runs, got {args.runs}")
+    if args.workers < 1:
+        raise UserError(f"--workers: must be >= 1, got {args.workers}")
+    m = run_tune(_plant(args), Path(args.out), n_runs=args.runs, workers=args.workers, scheduler=args.scheduler,
+                 thresholds=_load_thresholds(args.thresholds))
+    print(Path(args.out, "metrics.md").read_text())
+    tm = m["timing"]
+    print(f"{tm['runs_computed']} runs in {tm['wall_s']:.1f} s with {tm['workers']} worker(s) "
+          f"({tm['s_per_1000_runs']:.0f} s per 1000 runs)")
+    print(f"wrote {args.out}/metrics.md, metrics.json, thresholds_used.json, roc.png")
+    return 0

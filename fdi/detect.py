@@ -1,0 +1,313 @@
+"""Residuals, CUSUM alarms and the diagnosis (healthy / one fault / several / not isolable).
+
+Residuals (per sample):
+
+* ``nu_pA``, ``nu_pB``, ``nu_pos``: the filter's normalised innovations, N(0, 1)
+  when the model fits;
+* ``r_<hypothesis>``: each fault estimate against 0 in units of sqrt(sd^2 + nuisance^2)
+  (absolute; written, not used for alarms);
+* ``d_<param>``: the change residual, (estimate - healthy baseline) in units of
+  sqrt(sd^2 + sigma[regime]^2): the baseline is the recording's own estimate over
+  [warmup, warmup + baseline_s] or a healthy reference recording's.
+
+Alarms: a one-sided CUSUM per hypothesis on its change residual in continuous time,
+``g <- max(0, g + (r - drift) dt)``, held in regimes where the residual does not vote,
+alarm when ``g > h`` [sigma s]. sigma, the votes, the confusable pairs and h come from
+the sensitivity studies of :mod:`fdi.thresholds` (docs/fdi.md). A model-fit alarm on
+the weighted NIS flags faults that no parameter explains.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, FilterOutput, leak_lpm
+
+#: Fault hypotheses and the state each one reads (sign: +1 above healthy, -1 below).
+HYPOTHESES = {
+    "K_int": (I_KINT, +1),
+    "K_extA": (I_KEXTA, +1),
+    "K_extB": (I_KEXTB, +1),
+    "offset+": (I_OFFSET, +1),
+    "offset-": (I_OFFSET, -1),
+}
+RESIDUAL_NAMES = ("nu_pA", "nu_pB", "nu_pos") + tuple(f"r_{h}" for h in HYPOTHESES)
+
+
+#: Operating regimes of the change test, from the measured valve input u:
+#: "hold" |u| < band; extension u > band, retraction u < -band; "transient" for the
+#: first ``transient_s`` after the direction was entered, "steady" afterwards.
+REGIMES = ("hold", "extend-transient", "extend-steady", "retract-transient", "retract-steady")
+#: Fault parameter behind each change residual, and the hypotheses it serves.
+PARAMS = {"K_int": I_KINT, "K_extA": I_KEXTA, "K_extB": I_KEXTB, "offset": I_OFFSET}
+SHIPPED_THRESHOLDS = Path(__file__).resolve().parents[1] / "scenarios" / "faults" / "thresholds.toml"
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Decision thresholds of the change test (see docs/fdi.md).
+
+    The shipped values (:meth:`shipped`) come from ``samfdi fdi thresholds``: the
+    leakage GSA gives ``votes`` and ``confusable``, the nuisance GSA gives ``sigma``
+    and ``h``. ``Thresholds()`` is the shipped file when it exists.
+    """
+
+    drift: float = 1.0  #: sigma; CUSUM reference value: only r beyond this accumulates
+    h: dict = field(default_factory=lambda: {k: 1.0 for k in HYPOTHESES})  #: sigma s
+    warmup_s: float = 0.5  #: no alarms while the filter converges
+    baseline_s: float = 1.0  #: healthy baseline = mean estimate over [warmup, warmup + baseline_s]
+    #: healthy spread of (estimate - baseline) from model uncertainty, per parameter and regime (SI)
+    sigma: dict = field(default_factory=lambda: {
+        "K_int": [1.0e-9] * 5, "K_extA": [5e-10] * 5, "K_extB": [6e-10] * 5, "offset": [5e-3] * 5})
+    #: regimes in which each parameter's change residual votes (True) or is held (False)
+    votes: dict = field(default_factory=lambda: {k: [True] * 5 for k in PARAMS})
+    confusable: list = field(default_factory=lambda: [["K_int", "offset-"], ["K_extA", "offset-"],
+                                                       ["K_extB", "offset+"]])
+    band_V: float = 0.3  #: |u| below this: "hold"
+    transient_s: float = 0.3
+    nis_limit: float = 9.0  #: weighted NIS (3 channels; mean 3) above this is a model-fit alarm
+    nis_hold_s: float = 0.5  #: ... when held this long
+    false_alarm_level: float = 0.01  #: the level the h were chosen for (per run)
+    run_length_s: float = 4.0  #: ... over healthy runs of this length
+    #: absolute spread of each estimate (SI), for the confidence and the absolute residual r_*
+    nuisance_sd: dict = field(default_factory=lambda: {
+        "K_int": 1.00e-9, "K_extA": 5.14e-10, "K_extB": 6.07e-10, "offset": 5.19e-3})
+    source: str = "placeholder defaults (no thresholds file)"
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Thresholds":
+        path = Path(path)
+        text = path.read_text()
+        if path.suffix == ".toml":
+            import tomllib
+            data = tomllib.loads(text)
+        else:
+            data = json.loads(text)
+        data = data.get("thresholds", data)
+        known = {f for f in cls.__dataclass_fields__}
+        return cls(**{k: v for k, v in data.items() if k in known})
+
+    @classmethod
+    def shipped(cls) -> "Thresholds":
+        return cls.load(SHIPPED_THRESHOLDS) if SHIPPED_THRESHOLDS.exists() else cls()
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2)
+
+    def confusable_pairs(self) -> set:
+        return {frozenset(p) for p in self.confusable}
+
+
+#: Fault pairs whose signatures are too alike to tell apart (kept for reference; the
+#: thresholds file carries the pairs the leakage GSA found, ``Thresholds.confusable``).
+CONFUSABLE = {frozenset(("K_int", "offset-")), frozenset(("K_extA", "offset-")),
+              frozenset(("K_extB", "offset+"))}
+
+
+def regimes(u: np.ndarray, dt: float, band: float = 0.3, transient_s: float = 0.3) -> np.ndarray:
+    """Regime index (REGIMES) per sample of the input u (B, T)."""
+    u = np.atleast_2d(np.nan_to_num(u))
+    d = np.where(u > band, 1, np.where(u < -band, 2, 0))
+    B, T = u.shape
+    out = np.zeros((B, T), dtype=np.int8)
+    if T == 0:
+        return out
+    # time since the current direction was entered
+    change = np.ones((B, T), dtype=bool)
+    change[:, 1:] = d[:, 1:] != d[:, :-1]
+    idx = np.where(change, np.arange(T)[None, :], 0)
+    np.maximum.accumulate(idx, axis=1, out=idx)
+    since = (np.arange(T)[None, :] - idx) * dt
+    trans = since < transient_s
+    out[d == 1] = np.where(trans[d == 1], 1, 2)
+    out[d == 2] = np.where(trans[d == 2], 3, 4)
+    return out
+
+
+def baseline_values(out: FilterOutput, th: "Thresholds") -> np.ndarray:
+    """(B, 4) mean of each fault estimate over the baseline window [warmup, warmup + baseline_s]."""
+    t = out.t
+    w = (t >= th.warmup_s) & (t < th.warmup_s + th.baseline_s)
+    if not w.any():
+        w = np.zeros_like(t, dtype=bool)
+        w[: max(1, len(t) // 4)] = True
+    return np.stack([out.mean[:, w, j].mean(axis=1) for j in PARAMS.values()], axis=1)
+
+
+def change_residuals(out: FilterOutput, th: "Thresholds", baseline: np.ndarray | None = None,
+                     u: np.ndarray | None = None):
+    """Change residuals d_<param> = (estimate - baseline) / sqrt(sd^2 + sigma_regime^2),
+    name -> (B, T), and the regime index (B, T). Zero before the baseline is known."""
+    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    u = out.u if u is None else u
+    reg = regimes(u, dt, th.band_V, th.transient_s) if u is not None else np.full(out.mean.shape[:2], 2, np.int8)
+    own_baseline = baseline is None
+    base = baseline_values(out, th) if own_baseline else np.broadcast_to(np.atleast_2d(baseline), (out.mean.shape[0], 4))
+    ready = out.t >= (th.warmup_s + th.baseline_s if own_baseline else th.warmup_s)
+    res = {}
+    for i, (name, j) in enumerate(PARAMS.items()):
+        sig = np.asarray(th.sigma[name], dtype=float)[reg]
+        sd = np.sqrt(out.std[:, :, j] ** 2 + sig**2)
+        r = (out.mean[:, :, j] - base[:, i:i + 1]) / np.maximum(sd, 1e-300)
+        res[name] = np.where(ready[None, :], r, 0.0)
+    return res, reg
+
+
+def residuals(out: FilterOutput, th: "Thresholds | None" = None, baseline=None) -> dict[str, np.ndarray]:
+    """All residuals, name -> (B, T): innovations, absolute r_<hypothesis> and change d_<param>."""
+    res = {"nu_pA": out.nu[:, :, 0], "nu_pB": out.nu[:, :, 1], "nu_pos": out.nu[:, :, 2]}
+    for name, (j, sign) in HYPOTHESES.items():
+        extra = 0.0 if th is None else th.nuisance_sd.get(name.rstrip("+-"), 0.0)
+        sd = np.maximum(np.sqrt(out.std[:, :, j] ** 2 + extra**2), 1e-300)
+        res[f"r_{name}"] = sign * out.mean[:, :, j] / sd  # healthy value is 0 for every fault
+    if th is not None:
+        chg, reg = change_residuals(out, th, baseline)
+        for name, r in chg.items():
+            res[f"d_{name}"] = r
+        res["regime"] = reg.astype(float)
+    return res
+
+
+def cusum(r: np.ndarray, drift: float, dt: float, warmup: int = 0, active: np.ndarray | None = None) -> np.ndarray:
+    """Continuous-time one-sided CUSUM of r (B, T) [sigma s]; where ``active`` is False
+    (a regime in which the residual does not vote) the statistic is held."""
+    g = np.zeros_like(r)
+    acc = np.zeros(r.shape[0])
+    inc = np.nan_to_num(r - drift, nan=-drift) * dt
+    if active is not None:
+        inc = np.where(active, inc, 0.0)
+    for k in range(r.shape[1]):
+        acc = np.maximum(0.0, acc + inc[:, k]) if k >= warmup else acc
+        g[:, k] = acc
+    return g
+
+
+def statistics(out: FilterOutput, th: Thresholds, baseline=None) -> dict[str, np.ndarray]:
+    """CUSUM statistic per hypothesis on its change residual, name -> (B, T)."""
+    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    warm = int(round(th.warmup_s / dt))
+    chg, reg = change_residuals(out, th, baseline)
+    stats = {}
+    for h, (j, sign) in HYPOTHESES.items():
+        param = h.rstrip("+-")
+        active = np.asarray(th.votes[param], dtype=bool)[reg]
+        stats[h] = cusum(sign * chg[param], th.drift, dt, warm, active)
+    return stats
+
+
+def first_alarm(g: np.ndarray, h: float) -> np.ndarray:
+    """Index of the first sample with g > h per row (-1: none)."""
+    above = g > h
+    idx = np.argmax(above, axis=1)
+    return np.where(above.any(axis=1), idx, -1)
+
+
+def nis_alarm(out: FilterOutput, th: Thresholds) -> np.ndarray:
+    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    hold = max(1, int(round(th.nis_hold_s / dt)))
+    warm = int(round(th.warmup_s / dt))
+    hi = out.nis > th.nis_limit
+    hi[:, :warm] = False
+    # run length of consecutive high samples
+    run = np.zeros(hi.shape[0], dtype=int)
+    first = np.full(hi.shape[0], -1)
+    for k in range(hi.shape[1]):
+        run = np.where(hi[:, k], run + 1, 0)
+        newly = (run >= hold) & (first < 0)
+        first[newly] = k
+    return first
+
+
+@dataclass
+class Diagnosis:
+    status: str  #: "healthy" | "fault" | "several faults" | "fault, not isolable"
+    isolated: list  #: hypotheses held responsible (candidates when not isolable)
+    detection_time_s: float | None
+    alarms: dict  #: hypothesis -> first alarm time [s]
+    size: dict  #: hypothesis -> estimated size ({"value", "unit", "minus_2sigma", "plus_2sigma"})
+    confidence: dict  #: hypothesis -> probability the parameter is off its healthy value
+    model_fit_alarm_s: float | None
+    filter_health: dict
+    thresholds: dict
+    note: str = ""
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2, default=float)
+
+
+def _normal_cdf(x: float) -> float:
+    return 0.5 * (1.0 + math.erf(x / math.sqrt(2.0)))
+
+
+def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
+             stats: dict | None = None, baseline=None) -> Diagnosis:
+    """The diagnosis of filter run b."""
+    th = Thresholds.shipped() if th is None else th
+    stats = stats if stats is not None else statistics(out, th, baseline)
+    t = out.t
+    alarms = {}
+    for h, g in stats.items():
+        k = int(first_alarm(g[b:b + 1], th.h[h])[0])
+        if k >= 0:
+            alarms[h] = float(t[k])
+    k_nis = int(nis_alarm(out, th)[b])
+    nis_time = float(t[k_nis]) if k_nis >= 0 else None
+    # one-sided offset: keep only the side that alarmed first
+    if "offset+" in alarms and "offset-" in alarms:
+        drop = "offset+" if alarms["offset+"] > alarms["offset-"] else "offset-"
+        del alarms[drop]
+    tail = slice(max(0, len(t) - max(1, int(0.5 / max(t[1] - t[0], 1e-9)))), None) if len(t) > 1 else slice(None)
+    base = (baseline_values(out, th)[b] if baseline is None
+            else np.broadcast_to(np.atleast_2d(baseline), (out.mean.shape[0], 4))[b])
+    size, conf = {}, {}
+    for h in alarms:
+        j, sign = HYPOTHESES[h]
+        # size of the change: estimate over the last 0.5 s minus the healthy baseline
+        m = float(np.mean(out.mean[b, tail, j])) - float(base[list(PARAMS).index(h.rstrip("+-"))])
+        s = float(np.mean(out.std[b, tail, j]))
+        if h.startswith("K_"):
+            size[h] = {"value": float(leak_lpm(m)), "minus_2sigma": float(leak_lpm(m - 2 * s)),
+                       "plus_2sigma": float(leak_lpm(m + 2 * s)), "unit": "L/min at 10 MPa",
+                       "K_m3_per_s_sqrtPa": m}
+        else:
+            size[h] = {"value": 100 * m, "minus_2sigma": 100 * (m - 2 * s), "plus_2sigma": 100 * (m + 2 * s),
+                       "unit": "% of spool travel"}
+        s_tot = math.sqrt(s * s + th.nuisance_sd.get(h.rstrip("+-"), 0.0) ** 2)
+        conf[h] = _normal_cdf(sign * m / max(s_tot, 1e-300))
+    health = {"nan_samples": int(out.n_nan[b]), "jitter_events": int(out.n_jitter[b]),
+              "covariance_resets": int(out.n_cov_reset[b]), "state_resets": int(out.n_state_reset[b])}
+    names = sorted(alarms, key=alarms.get)
+    note = ""
+    if not names:
+        if nis_time is not None:
+            status, isolated = "fault, not isolable", []
+            note = ("the model stopped fitting the measurements (NIS alarm) but no fault parameter "
+                    "explains it: an unmodelled fault, a sensor fault or a plant-file mismatch")
+        else:
+            status, isolated = "healthy", []
+    elif len(names) == 1:
+        status, isolated = "fault", names
+    else:
+        pairs = th.confusable_pairs()
+        confusable = any(frozenset((a, c)) in pairs for a in names for c in names if a != c)
+        if confusable:
+            status, isolated = "fault, not isolable", names
+            note = ("the alarmed hypotheses have similar signatures on the chamber pressures "
+                    "(valve offset vs leakage); the estimates cannot tell them apart here")
+        else:
+            status, isolated = "several faults", names
+    return Diagnosis(
+        status=status, isolated=isolated, detection_time_s=(alarms[names[0]] if names else nis_time),
+        alarms=alarms, size=size, confidence=conf, model_fit_alarm_s=nis_time, filter_health=health,
+        thresholds={"drift_sigma": th.drift, "h_sigma_s": dict(th.h), "warmup_s": th.warmup_s,
+                    "baseline": "reference recording" if baseline is not None else
+                    f"own estimates over [{th.warmup_s:g}, {th.warmup_s + th.baseline_s:g}] s",
+                    "false_alarm_level": th.false_alarm_level, "run_length_s": th.run_length_s,
+                    "source": th.source},
+        note=note,
+    )

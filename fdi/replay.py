@@ -1,0 +1,240 @@
+"""Offline replay of a recording: filter, residuals, alarms, diagnosis, files, figure.
+
+Only ``rec.measured()`` is ever used: the ``true_*`` columns are dropped before
+anything else looks at the recording.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+from sam import P, Plant, Recording, UserError, simulate_batch
+from sam.geometry import piston_position
+
+from .detect import HYPOTHESES, Diagnosis, Thresholds, diagnose, residuals, statistics
+from .ukf import (
+    FAULT_STATES, POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
+    run_filter,
+)
+
+SENSOR_RANGE_PA = (0.0, 25e6)  #: pressure sensors of the SAM
+RANGE_MARGIN_PA = 0.5e6  #: noise around the range ends that is still accepted
+MAX_DT = 2e-3  #: s, the forward-Euler model step is the sampling step: stable up to here
+OUTPUT_FILES = ("estimates.csv", "residuals.csv", "diagnosis.json", "replay.png")
+
+
+def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = False) -> tuple[FilterInput, dict]:
+    """Check a (measured-only) recording and turn it into the filter's input."""
+    name = str(rec.source) if rec.source else "recording"
+    if rec.n < 10:
+        raise UserError(f"{name}: only {rec.n} samples; the filter needs at least 10")
+    dt = rec.dt
+    if not (dt <= MAX_DT):
+        raise UserError(f"{name}: 't': sampling step {dt * 1e3:.3g} ms is above {MAX_DT * 1e3:g} ms; the filter "
+                        "steps the model at the sampling step and forward Euler is not stable there: "
+                        "record at 1 kHz or faster")
+    info = {"samples": rec.n, "dt_s": dt, "position": "x" if "x" in rec.signals else "theta",
+            "supply_pressure_measured": "pS" in rec.signals, "out_of_range_samples": 0,
+            "ignored_optional_columns": sorted(set(rec.signals) & {"v", "xs"})}
+    sig = {k: np.array(v, dtype=float) for k, v in rec.signals.items()}
+    for ch in ("pA", "pB", "pS"):
+        if ch not in sig:
+            continue
+        a = sig[ch]
+        bad = np.isfinite(a) & ((a < SENSOR_RANGE_PA[0] - RANGE_MARGIN_PA) | (a > SENSOR_RANGE_PA[1] + RANGE_MARGIN_PA))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            if not drop_out_of_range:
+                raise UserError(
+                    f"{name}: '{ch}': {int(bad.sum())} sample(s) outside the sensor range 0-25 MPa "
+                    f"(first at data row {i + 1}, t = {rec.t[i]:.6g} s: {a[i]:.6g} Pa); "
+                    "use --drop-out-of-range to treat them as missing samples")
+            a[bad] = np.nan
+            info["out_of_range_samples"] += int(bad.sum())
+    u = sig["u"]
+    if np.isnan(u).any():  # the input drives the model: hold the last value through a gap
+        idx = np.where(np.isfinite(u), np.arange(len(u)), 0)
+        np.maximum.accumulate(idx, out=idx)
+        u = u[idx]
+        u[~np.isfinite(u)] = 0.0
+        info["u_gaps_held"] = int(np.isnan(sig["u"]).sum())
+    if "x" in sig:
+        pos, kind = sig["x"], POS_X
+    else:
+        pos, kind = sig["theta"], POS_THETA
+    params = plant.vector()[None, :]
+    inp = FilterInput(dt=dt, u=u[None, :], pA=sig["pA"][None, :], pB=sig["pB"][None, :], pos=pos[None, :],
+                      pos_kind=kind, params=params, pS=sig["pS"][None, :] if "pS" in sig else None)
+    return inp, info
+
+
+def check_observable(inp: FilterInput, plant: Plant, name: str = "plant") -> None:
+    """Refuse a plant under which a fault parameter cannot change the measurements.
+
+    Simulates the recording's input for up to 2 s with each fault set to a clear
+    size (1 L/min at 10 MPa, 2 % offset) and checks that the pressures move by more
+    than the sensor noise.
+    """
+    T = min(inp.u.shape[1], int(2.0 / inp.dt) + 1)
+    p0 = plant.vector()
+    from .ukf import K_PER_LPM
+    rows = [p0.copy()]
+    sizes = {"K_int": K_PER_LPM, "K_extA": K_PER_LPM, "K_extB": K_PER_LPM, "offset": 0.02}
+    for f, v in sizes.items():
+        p = p0.copy()
+        p[P[f]] = v
+        rows.append(p)
+    params = np.array(rows)
+    from sam import initial_state
+    x0 = initial_state(params, x=0.05)
+    res = simulate_batch(params, inp.u[0, :T - 1], inp.dt, x0=x0, channels=("p_A", "p_B", "x"))
+    ok = [np.isfinite(res[c]).all() for c in ("p_A", "p_B", "x")]
+    if not all(ok):
+        raise UserError(f"{name}: the model diverges under this plant and the recording's input; "
+                        "check the plant parameters (volumes, bulk modulus, valve flows)")
+    for i, f in enumerate(sizes, start=1):
+        effect = max(np.max(np.abs(res["p_A"][i] - res["p_A"][0])), np.max(np.abs(res["p_B"][i] - res["p_B"][0])))
+        if not effect > 20e3:
+            raise UserError(
+                f"{name}: parameter '{f}' is unobservable with this plant: a fault of "
+                f"{'2 %' if f == 'offset' else '1 L/min at 10 MPa'} changes the chamber pressures by "
+                f"only {effect:.3g} Pa (< the 20 kPa sensor noise); check B_eff, V_0A, V_0B and the valve flows")
+
+
+def reference_baseline(ref: Recording, plant: Plant, cfg: FilterConfig = FilterConfig(), *,
+                       drop_out_of_range: bool = False) -> np.ndarray:
+    """(1, 4) healthy baseline of the fault estimates from a reference recording of the same
+    machine: the mean of each estimate over the second half of the reference."""
+    ref = ref.measured()
+    inp, _ = filter_input(ref, plant, drop_out_of_range=drop_out_of_range)
+    out = run_filter(inp, cfg)
+    half = out.mean.shape[1] // 2
+    return np.array([[out.mean[0, half:, j].mean() for j in FAULT_STATES]])
+
+
+def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig = FilterConfig(),
+           thresholds: Thresholds | None = None, drop_out_of_range: bool = False,
+           baseline: Recording | np.ndarray | None = None):
+    """Filter one recording and diagnose it. Returns (output, residuals, stats, diagnosis, info).
+
+    ``baseline``: a healthy reference recording (or its (1, 4) baseline values); default:
+    the recording's own estimates over the baseline window of the thresholds."""
+    thresholds = Thresholds.shipped() if thresholds is None else thresholds
+    rec = rec.measured()  # never the true_* columns
+    inp, info = filter_input(rec, plant, drop_out_of_range=drop_out_of_range)
+    check_observable(inp, plant, str(rec.source or "recording"))
+    if isinstance(baseline, Recording):
+        baseline = reference_baseline(baseline, plant, cfg, drop_out_of_range=drop_out_of_range)
+    out = run_filter(inp, cfg)
+    out.t = rec.t - rec.t[0]
+    stats = statistics(out, thresholds, baseline)
+    diag = diagnose(out, thresholds, 0, stats, baseline)
+    diag.filter_health.update(info)
+    if info["out_of_range_samples"]:
+        diag.filter_health["out_of_range_samples"] = info["out_of_range_samples"]
+    res = residuals(out, thresholds, baseline)
+    return out, res, stats, diag, info
+
+
+def replay_recording(rec: Recording, plant: Plant, out_dir, *, force: bool = False,
+                     thresholds: Thresholds | None = None, drop_out_of_range: bool = False,
+                     figure: bool = True, baseline=None) -> Diagnosis:
+    """Replay and write estimates.csv, residuals.csv, diagnosis.json and replay.png into out_dir."""
+    out_dir = Path(out_dir)
+    existing = [f for f in OUTPUT_FILES if (out_dir / f).exists()]
+    if existing and not force:
+        raise UserError(f"{out_dir}: already holds {', '.join(existing)}; use --force to overwrite")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"{out_dir}: exists and is not a folder")
+    thresholds = Thresholds.shipped() if thresholds is None else thresholds
+    out, res, stats, diag, info = replay(rec, plant, thresholds=thresholds, drop_out_of_range=drop_out_of_range,
+                                         baseline=baseline)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t = rec.t
+    _write_estimates(out_dir / "estimates.csv", t, out)
+    _write_residuals(out_dir / "residuals.csv", t, res, stats, thresholds)
+    (out_dir / "diagnosis.json").write_text(diag.to_json() + "\n")
+    if figure:
+        _figure(out_dir / "replay.png", t, out, res, stats, thresholds, diag)
+    return diag
+
+
+def _write_estimates(path: Path, t, out: FilterOutput) -> None:
+    cols = {"t": t}
+    for name in ("K_int", "K_extA", "K_extB"):
+        j = STATE_NAMES.index(name)
+        m, s = out.mean[0, :, j], out.std[0, :, j]
+        cols[name] = m
+        cols[f"{name}_lo2s"] = m - 2 * s
+        cols[f"{name}_hi2s"] = m + 2 * s
+        cols[f"{name}_Lpm"] = leak_lpm(m)
+        cols[f"{name}_Lpm_lo2s"] = leak_lpm(m - 2 * s)
+        cols[f"{name}_Lpm_hi2s"] = leak_lpm(m + 2 * s)
+    for name in ("offset", "F_d", "v", "p_A", "p_B", "x"):
+        j = STATE_NAMES.index(name)
+        m, s = out.mean[0, :, j], out.std[0, :, j]
+        cols[name] = m
+        cols[f"{name}_lo2s"] = m - 2 * s
+        cols[f"{name}_hi2s"] = m + 2 * s
+    _write_csv(path, cols)
+
+
+def _write_residuals(path: Path, t, res, stats, th: Thresholds) -> None:
+    cols = {"t": t}
+    for k, v in res.items():
+        cols[k] = v[0]
+    for h, g in stats.items():
+        cols[f"cusum_{h}"] = g[0]
+        cols[f"threshold_{h}"] = np.full(len(t), th.h[h])
+    _write_csv(path, cols)
+
+
+def _write_csv(path: Path, cols: dict) -> None:
+    names = list(cols)
+    data = np.column_stack([np.asarray(cols[n], dtype=float) for n in names])
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(names)
+        for row in data:
+            w.writerow([repr(float(x)) if math.isfinite(x) else "nan" for x in row])
+
+
+def _figure(path: Path, t, out, res, stats, th, diag) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
+    ax = axes[0]
+    for name, c in zip(("K_int", "K_extA", "K_extB"), ("C0", "C1", "C2")):
+        j = STATE_NAMES.index(name)
+        m, s = leak_lpm(out.mean[0, :, j]), leak_lpm(out.std[0, :, j])
+        ax.plot(t, m, c, label=name)
+        ax.fill_between(t, m - 2 * s, m + 2 * s, color=c, alpha=0.2)
+    ax.set_ylabel("leak [L/min at 10 MPa]")
+    ax.legend(loc="upper left")
+    ax2 = axes[1]
+    j = STATE_NAMES.index("offset")
+    m, s = 100 * out.mean[0, :, j], 100 * out.std[0, :, j]
+    ax2.plot(t, m, "C3", label="offset")
+    ax2.fill_between(t, m - 2 * s, m + 2 * s, color="C3", alpha=0.2)
+    ax2.set_ylabel("offset [% travel]")
+    ax2.legend(loc="upper left")
+    ax3 = axes[2]
+    for i, (h, g) in enumerate(stats.items()):
+        ax3.plot(t, g[0] / th.h[h], f"C{i}", label=f"CUSUM {h} / h")
+    ax3.axhline(1.0, color="k", ls="--", label="threshold")
+    ax3.set_ylabel("statistic / threshold")
+    ax3.set_xlabel("t [s]")
+    ax3.legend(loc="upper left", fontsize=8)
+    for h, ta in diag.alarms.items():
+        for a in axes:
+            a.axvline(ta, color="r", lw=0.8)
+    fig.suptitle(f"diagnosis: {diag.status} {', '.join(diag.isolated)}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

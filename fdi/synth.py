@@ -1,0 +1,131 @@
+"""Synthetic test data: runs of ``sam.simulate_batch`` with fault and load profiles
+and the SAM's sensor noise (20 kPa pressure noise, 0.007 deg encoder pulses).
+
+Used by the tests, the signature tables, the Monte Carlo tuning and the
+benchmark. Only measured channels go to the filter; the truth is kept apart.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sam import P, simulate_batch
+from sam.geometry import joint_angle
+
+from .ukf import K_PER_LPM, POS_THETA, POS_X, THETA_PULSE, FilterInput
+
+FAULT_NAMES = ("K_int", "K_extA", "K_extB", "offset")
+
+
+def profile(kind: str, value: float, t: np.ndarray, t0: float = 0.0, t1: float | None = None,
+            period: float = 1.0, duty: float = 0.5) -> np.ndarray:
+    """A fault profile over time t: constant, step (at t0), ramp (t0 -> t1), intermittent."""
+    if kind == "constant":
+        return np.full_like(t, value)
+    if kind == "step":
+        return np.where(t >= t0, value, 0.0)
+    if kind == "ramp":
+        t1 = t[-1] if t1 is None else t1
+        return value * np.clip((t - t0) / max(t1 - t0, 1e-12), 0.0, 1.0)
+    if kind == "intermittent":
+        on = (t >= t0) & (((t - t0) % period) < duty * period)
+        return np.where(on, value, 0.0)
+    raise ValueError(f"unknown profile kind {kind!r}")
+
+
+def input_signal(kind: str, t: np.ndarray, amplitude: float = 3.0, frequency: float = 0.5,
+                 offset: float = 0.0, seed: int = 0, period: float = 4.0) -> np.ndarray:
+    """Valve input [V]: sine, step, prbs or an extend/retract cycle."""
+    if kind == "sine":
+        return offset + amplitude * np.sin(2 * np.pi * frequency * t)
+    if kind == "step":
+        return np.where(t >= 0.1, amplitude, 0.0) + offset
+    if kind == "cycle":  # extend, hold, retract, hold
+        ph = (t % period) / period
+        return offset + amplitude * np.select([ph < 0.25, ph < 0.5, ph < 0.75], [1.0, 0.0, -1.0], 0.0)
+    if kind == "prbs":
+        rng = np.random.default_rng(seed)
+        hold = 0.2
+        n = int(math.ceil(t[-1] / hold)) + 1
+        levels = rng.choice([-1.0, 1.0], size=n)
+        return offset + amplitude * levels[(t / hold).astype(int)]
+    raise ValueError(f"unknown input kind {kind!r}")
+
+
+@dataclass
+class Runs:
+    """Simulated runs: what the filter sees plus the truth."""
+
+    inp: FilterInput
+    truth: dict[str, np.ndarray] = field(default_factory=dict)  #: name -> (B, T)
+    cavitated: np.ndarray | None = None
+
+    @property
+    def t(self) -> np.ndarray:
+        return np.arange(self.inp.u.shape[1]) * self.inp.dt
+
+
+def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict | None = None,
+                  m_L: np.ndarray | None = None, nominal: np.ndarray | None = None,
+                  pressure_noise: float = 20e3, quantise: bool = True, position: str = "theta",
+                  seed: int = 0, x0: float = 0.05) -> Runs:
+    """Simulate B runs and add sensor noise.
+
+    Args:
+        params: (B, len(P)) TRUE plant vectors (may differ from the nominal).
+        u: (T,) or (B, T) input [V]; the recording has T samples (T-1 steps).
+        faults: name -> (T,) or (B, T) SI values over time (K in m^3/(s Pa^0.5)).
+        m_L: (T,) or (B, T) load mass over time, or None (constant from params).
+        nominal: (B, len(P)) vectors the filter is given; default = params with
+            healthy faults and the plant's own m_L.
+        position: "theta" (quantised encoder) or "x".
+    """
+    params = np.atleast_2d(np.asarray(params, dtype=float)).copy()
+    B = params.shape[0]
+    u = np.broadcast_to(np.atleast_2d(u), (B, np.shape(u)[-1])).astype(float)
+    T = u.shape[1]
+    tv = {}
+    truth = {}
+    for name, arr in (faults or {}).items():
+        arr = np.broadcast_to(np.atleast_2d(arr), (B, T)).astype(float)
+        tv[name] = arr[:, :-1]
+        truth[name] = arr
+    if m_L is not None:
+        arr = np.broadcast_to(np.atleast_2d(m_L), (B, T)).astype(float)
+        tv["m_L"] = arr[:, :-1]
+        truth["m_L"] = arr
+    from sam import initial_state
+    p_init = params.copy()
+    for name, arr in truth.items():
+        p_init[:, P[name]] = arr[:, 0]
+    s0 = initial_state(p_init, x=x0)
+    res = simulate_batch(params, u[:, :-1], dt, x0=s0, time_varying=tv or None)
+    rng = np.random.default_rng(seed)
+    pA = res["p_A"] + pressure_noise * rng.standard_normal((B, T))
+    pB = res["p_B"] + pressure_noise * rng.standard_normal((B, T))
+    x = res["x"]
+    truth["v"] = res["v"]
+    truth["x"] = x
+    if position == "theta":
+        th = joint_angle(x, params[:, [P.L_1]], params[:, [P.L_2]], params[:, [P.L_3]])
+        if quantise:
+            th = np.floor(th / THETA_PULSE) * THETA_PULSE + 0.5 * THETA_PULSE
+        pos, kind = th, POS_THETA
+    else:
+        pos, kind = x.copy(), POS_X
+    if nominal is None:
+        nominal = params.copy()
+        for name in FAULT_NAMES:
+            nominal[:, P[name]] = 0.0
+        nominal[:, P.F_d] = 0.0
+    inp = FilterInput(dt=dt, u=np.ascontiguousarray(u), pA=pA, pB=pB, pos=pos, pos_kind=kind,
+                      params=np.ascontiguousarray(nominal))
+    return Runs(inp, truth, res.cavitated)
+
+
+def lpm(value_lpm: float) -> float:
+    """Leak coefficient for a leak of value_lpm L/min at 10 MPa."""
+    return value_lpm * K_PER_LPM

@@ -1,0 +1,355 @@
+"""Thresholds from the sensitivity ranking (issue 4, section 2; docs/fdi.md).
+
+Two Sobol' studies through the generic engine :mod:`gsa`, whose "model" is one
+simulated run of the SAM followed by the batched UKF and the change residuals:
+
+1. **Leakage GSA** (the Table 5 box of ``scenarios/gsa/paper_leakage.toml``,
+   K_int, K_extA, K_extB in 0-1 L/min at 10 MPa, plus the valve offset in +-2 %),
+   faults stepping in at 1.5 s. Outputs: the mean change of every fault estimate
+   in each regime (extension/retraction x transient/steady, hold). The total index
+   of fault f on the change residual of its own parameter in regime g decides
+   whether that residual **votes** for f in g (ST >= ``VOTE_ST``); a total index of
+   another fault on it (>= ``CONFUSE_ST``) makes the pair **confusable**.
+2. **Nuisance GSA**: Table 1's parameters that a calibration leaves uncertain,
+   with narrowed ranges (each valve notch's Q_N and dp_N +-2 %, B_eff +-10 %,
+   b +-20 %), plus the unknown load m_L 0-800 kg, the experiment (input kind,
+   amplitude, frequency) and the sensor-noise realisation as factors. Outputs:
+   the RMS change of each healthy fault estimate per regime. Their second moment
+   over the design is the healthy variance sigma^2 each residual carries from
+   model uncertainty (the residual's denominator); the Sobol' indices name the
+   parameters that carry it. The CUSUM threshold h of each hypothesis is the
+   (1 - alpha/5) quantile (Gumbel fit) of the per-run maxima of its statistic
+   over the same healthy runs, for a stated false-alarm level alpha per 4 s run.
+
+``compute_thresholds`` returns the :class:`~fdi.detect.Thresholds` and a report;
+``write_thresholds`` writes ``thresholds.toml`` (the shipped copy is
+``scenarios/faults/thresholds.toml``) and ``thresholds.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from sam import P, Plant
+
+from .detect import HYPOTHESES, PARAMS, REGIMES, Thresholds, baseline_values, regimes
+from .synth import input_signal, simulate_runs
+from .ukf import run_filter
+
+DURATION, DT, ONSET = 4.0, 1e-3, 1.5
+VOTE_ST = 0.5  #: a residual votes for fault f in a regime where ST_f >= this
+CONFUSE_ST = 0.2  #: another fault with ST >= this on a voting residual: confusable pair
+FA_LEVEL = 0.01  #: stated false-alarm level per 4 s healthy run
+#: narrowed nuisance ranges (relative half-widths) of Table 1's parameters
+NARROWED = {"Q_N": 0.02, "dp_N": 0.02, "B_eff": 0.10, "b": 0.20}
+NOTCHES = ("PA", "AT", "PB", "BT")
+INPUT_KINDS = ("sine", "cycle", "prbs")
+LEAKAGE_STUDY = Path(__file__).resolve().parents[1] / "scenarios" / "gsa" / "paper_leakage.toml"
+OFFSET_RANGE = 0.02
+
+
+def _experiment(x: float, t: np.ndarray) -> np.ndarray:
+    """The input of factor value x in [0, 1): kind, amplitude, frequency, period."""
+    kind = INPUT_KINDS[min(int(x * 3), 2)]
+    r = np.random.default_rng(int(x * 2**31))
+    return input_signal(kind, t, amplitude=r.uniform(2.0, 4.0), frequency=r.uniform(0.25, 0.6),
+                        seed=int(r.integers(1 << 31)), period=r.uniform(2.0, 4.0))
+
+
+def _run_rows(params: np.ndarray, exp: np.ndarray, noise: np.ndarray, faults=None):
+    """Simulate and filter one run per row; deterministic given the factor values."""
+    T = int(round(DURATION / DT)) + 1
+    t = np.arange(T) * DT
+    u = np.stack([_experiment(x, t) for x in exp])
+    nominal = np.tile(_NOMINAL, (len(params), 1))
+    runs = simulate_runs(params, u, DT, faults=faults, nominal=nominal, pressure_noise=0.0)
+    for i, x in enumerate(noise):
+        r = np.random.default_rng(int(x * 2**31) + 17)
+        runs.inp.pA[i] += 20e3 * r.standard_normal(T)
+        runs.inp.pB[i] += 20e3 * r.standard_normal(T)
+    return run_filter(runs.inp)
+
+
+_NOMINAL = None
+
+
+def _dev(out, th: Thresholds):
+    base = baseline_values(out, th)
+    dev = np.stack([out.mean[:, :, j] - base[:, i:i + 1] for i, j in enumerate(PARAMS.values())], axis=1)
+    sd = np.stack([out.std[:, :, j] for j in PARAMS.values()], axis=1)
+    reg = regimes(out.u, DT, th.band_V, th.transient_s)
+    return dev, sd, reg
+
+
+def _regime_stat(dev, reg, after: float, how: str) -> np.ndarray:
+    """(n, 4 params x 5 regimes): mean or RMS of dev per regime after time `after`."""
+    n, npar, T = dev.shape
+    k0 = int(round(after / DT))
+    Y = np.zeros((n, npar, len(REGIMES)))
+    for g in range(len(REGIMES)):
+        w = reg[:, k0:] == g
+        cnt = np.maximum(w.sum(axis=1), 1)
+        for i in range(npar):
+            d = dev[:, i, k0:]
+            Y[:, i, g] = (np.where(w, d, 0).sum(axis=1) / cnt if how == "mean"
+                          else np.sqrt(np.where(w, d * d, 0).sum(axis=1) / cnt))
+    return Y.reshape(n, -1)
+
+
+def output_names() -> list[str]:
+    return [f"{p}|{g}" for p in PARAMS for g in REGIMES]
+
+
+# ------------------------------------------------------------------ the two GSA models
+
+
+def _leak_model(X: np.ndarray, th: Thresholds) -> np.ndarray:
+    """Leakage GSA model: X columns K_int, K_extA, K_extB, offset, experiment, noise."""
+    n = len(X)
+    T = int(round(DURATION / DT)) + 1
+    t = np.arange(T) * DT
+    params = np.tile(_NOMINAL, (n, 1))
+    faults = {name: np.where(t[None, :] >= ONSET, X[:, [i]], 0.0)
+              for i, name in enumerate(("K_int", "K_extA", "K_extB", "offset"))}
+    out = _run_rows(params, X[:, 4], X[:, 5], faults)
+    dev, _, reg = _dev(out, th)
+    return _regime_stat(dev, reg, ONSET + 0.2, "mean")
+
+
+def _nuisance_params(X: np.ndarray) -> np.ndarray:
+    params = np.tile(_NOMINAL, (len(X), 1))
+    c = 0
+    for notch in NOTCHES:
+        params[:, P[f"Q_N_{notch}"]] *= X[:, c]
+        params[:, P[f"dp_N_{notch}"]] *= X[:, c + 1]
+        c += 2
+    params[:, P.B_eff] *= X[:, c]
+    params[:, P.b] *= X[:, c + 1]
+    params[:, P.m_L] = X[:, c + 2]
+    return params
+
+
+def _nuisance_model(X: np.ndarray, th: Thresholds):
+    out = _run_rows(_nuisance_params(X), X[:, -2], X[:, -1])
+    dev, sd, reg = _dev(out, th)
+    return _regime_stat(dev, reg, th.warmup_s + th.baseline_s, "rms"), (dev, sd, reg)
+
+
+def _problems():
+    from gsa import Problem
+    from gsa.studies import load_study
+
+    leak = load_study(LEAKAGE_STUDY).study.problem  # the Table 5 box, as the paper's study file gives it
+    lp = Problem(names=(*leak.names, "offset", "experiment", "noise"),
+                 bounds=(*leak.bounds, (-OFFSET_RANGE, OFFSET_RANGE), (0.0, 1.0), (0.0, 1.0)))
+    names, bounds, groups = [], [], []
+    for notch in NOTCHES:
+        for q in ("Q_N", "dp_N"):
+            names.append(f"{q}_{notch}")
+            bounds.append((1 - NARROWED[q], 1 + NARROWED[q]))
+            groups.append(f"valve_{notch}")
+    for q in ("B_eff", "b"):
+        names.append(q)
+        bounds.append((1 - NARROWED[q], 1 + NARROWED[q]))
+        groups.append(q)
+    names += ["m_L", "experiment", "noise"]
+    bounds += [(0.0, 800.0), (0.0, 1.0), (0.0, 1.0)]
+    groups += ["m_L", "experiment", "noise"]
+    npb = Problem(names=tuple(names), bounds=tuple(bounds), groups=tuple(groups))
+    return lp, npb
+
+
+def _evaluate(model, X, th, workers: int, chunk: int = 32):
+    parts = [X[i:i + chunk] for i in range(0, len(X), chunk)]
+    if workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(workers, initializer=_init, initargs=(_NOMINAL,)) as ex:
+            return list(ex.map(model, parts, [th] * len(parts)))
+    return [model(p, th) for p in parts]
+
+
+def _init(nominal):
+    global _NOMINAL
+    _NOMINAL = nominal
+
+
+def _gumbel_quantile(x: np.ndarray, p: float) -> float:
+    m, s = float(np.mean(x)), float(np.std(x))
+    if s == 0.0:
+        return m
+    beta = s * math.sqrt(6.0) / math.pi
+    mu = m - 0.5772156649 * beta
+    return mu - beta * math.log(-math.log(p))
+
+
+def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = 32, seed: int = 2011,
+                       workers: int = 1, fa_level: float = FA_LEVEL, drift: float = 1.0) -> tuple[Thresholds, dict]:
+    """Run both studies and derive the thresholds. Returns (thresholds, report)."""
+    import warnings
+
+    from gsa import analyze, saltelli_design
+
+    _init(plant.vector())
+    th0 = replace(Thresholds(), drift=drift)
+    lp, npb = _problems()
+    names = output_names()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        # ---- (a) leakage GSA: which residual votes for which fault, in which regime
+        d_leak = saltelli_design(lp, N_leak, seed)
+        Y_leak = np.vstack(_evaluate(_leak_model, d_leak.X, th0, workers))
+        r_leak = analyze(lp, d_leak, Y_leak, n_boot=0, output_names=names)
+        # ---- (b) nuisance GSA: healthy variance per residual and regime
+        d_nui = saltelli_design(npb, N_nuisance, seed + 1)
+        parts = _evaluate(_nuisance_model, d_nui.X, th0, workers)
+        r_nui = analyze(npb, d_nui, np.vstack([p[0] for p in parts]), n_boot=0, output_names=names)
+    Y_nui = np.vstack([p[0] for p in parts])
+    dev = np.concatenate([p[1][0] for p in parts])
+    sd = np.concatenate([p[1][1] for p in parts])
+    reg = np.concatenate([p[1][2] for p in parts])
+
+    faults = list(r_leak.factor_names[:4])  # K_int, K_extA, K_extB, offset
+    ST = np.nan_to_num(r_leak.ST)
+    votes, confusable, vote_st = {}, set(), {}
+    A = d_leak.split(Y_leak).f_A
+    XA = d_leak.X[:N_leak]
+    for i, p in enumerate(PARAMS):
+        fi = faults.index(p)
+        v, st_own = [], []
+        for g, gname in enumerate(REGIMES):
+            col = names.index(f"{p}|{gname}")
+            st_own.append(float(ST[fi, col]))
+            v.append(bool(ST[fi, col] >= VOTE_ST))
+            if not v[-1]:
+                continue
+            for fj, f in enumerate(faults):
+                if f == p or ST[fj, col] < CONFUSE_ST:
+                    continue
+                # sign of the other fault's effect on this residual, from the A block
+                c = np.nan_to_num(np.corrcoef(XA[:, fj], A[:, col])[0, 1], nan=1.0)
+                a = f if f != "offset" else ("offset+" if c >= 0 else "offset-")
+                hyps = [h for h in HYPOTHESES if h.rstrip("+-") == p]
+                if p == "offset":
+                    hyps = ["offset+" if c >= 0 else "offset-"]
+                for h in hyps:
+                    if a.rstrip("+-") != h.rstrip("+-"):
+                        confusable.add(tuple(sorted((a, h))))
+        if not any(v):  # never silence a hypothesis entirely: vote where it shows most
+            v[int(np.argmax(st_own))] = True
+        votes[p] = v
+        vote_st[p] = st_own
+
+    # ---- healthy variance per residual and regime (second moment over the A and B blocks)
+    iid = np.r_[0:N_nuisance, N_nuisance:2 * N_nuisance]
+    ms = (Y_nui[iid] ** 2).mean(axis=0).reshape(len(PARAMS), len(REGIMES))
+    sigma = {p: [float(max(math.sqrt(ms[i, g]), 1e-15)) for g in range(len(REGIMES))]
+             for i, p in enumerate(PARAMS)}
+    th1 = replace(th0, sigma=sigma, votes=votes, confusable=[list(c) for c in sorted(confusable)])
+
+    # ---- CUSUM thresholds for the stated false-alarm level, from the same healthy runs
+    st = _healthy_statistics(dev, sd, reg, th1)
+    maxima = {h: g.max(axis=1) for h, g in st.items()}
+    q = 1.0 - fa_level / len(maxima)
+    h = {k: float(max(_gumbel_quantile(v, q), np.max(v) * 1.05, 0.02)) for k, v in maxima.items()}
+    th = replace(th1, h=h, false_alarm_level=fa_level, run_length_s=DURATION,
+                 nuisance_sd={p: float(np.sqrt(np.mean(dev[:, i, int(0.5 / DT):] ** 2))) for i, p in enumerate(PARAMS)},
+                 source=(f"samfdi fdi thresholds: leakage GSA N={N_leak} ({d_leak.n_runs} runs), nuisance GSA "
+                         f"N={N_nuisance} ({d_nui.n_runs} runs), seed {seed}"))
+    ranking = {nm: r_nui.ranked_factors(nm)[:3] for nm in names}
+    st_nui = {nm: {f: float(np.nan_to_num(r_nui.ST[i, j])) for i, f in enumerate(r_nui.factor_names)}
+              for j, nm in enumerate(names)}
+    st_leak = {nm: {f: float(np.nan_to_num(r_leak.ST[i, j])) for i, f in enumerate(r_leak.factor_names)}
+               for j, nm in enumerate(names)}
+    report = {"votes_ST_own": vote_st, "leakage_ST": st_leak, "nuisance_ST": st_nui, "nuisance_top3": ranking,
+              "healthy_maxima_quantiles": {k: [float(np.quantile(v, 0.5)), float(np.quantile(v, 0.99)),
+                                               float(np.max(v))] for k, v in maxima.items()},
+              "n_runs": {"leakage": d_leak.n_runs, "nuisance": d_nui.n_runs},
+              "narrowed_ranges": {**{k: f"+-{100 * v:g} %" for k, v in NARROWED.items()}, "m_L": "0-800 kg"}}
+    return th, report
+
+
+def _healthy_statistics(dev, sd, reg, th: Thresholds) -> dict:
+    """CUSUM statistics of healthy runs given their changes dev (n, 4, T), filter sd and regimes."""
+    from .detect import cusum
+
+    T = dev.shape[2]
+    t = np.arange(T) * DT
+    warm = int(round(th.warmup_s / DT))
+    ready = t >= th.warmup_s + th.baseline_s
+    out = {}
+    for h, (_, sign) in HYPOTHESES.items():
+        p = h.rstrip("+-")
+        i = list(PARAMS).index(p)
+        sig = np.asarray(th.sigma[p])[reg]
+        r = np.where(ready[None, :], sign * dev[:, i] / np.sqrt(sd[:, i] ** 2 + sig**2), 0.0)
+        out[h] = cusum(r, th.drift, DT, warm, np.asarray(th.votes[p], dtype=bool)[reg])
+    return out
+
+
+# ------------------------------------------------------------------ output
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(type(v))
+
+
+def to_toml(th: Thresholds) -> str:
+    from dataclasses import asdict
+
+    d = asdict(th)
+    lines = ["# Thresholds of the change test, from `samfdi fdi thresholds` (fdi/thresholds.py, docs/fdi.md).",
+             "# Units: sigma SI (leaks m^3/(s Pa^0.5), offset fraction of travel), h in sigma s.",
+             f"# regimes (sigma and votes lists): {list(REGIMES)}", "[thresholds]"]
+    tables = []
+    for k, v in d.items():
+        if isinstance(v, dict):
+            tables.append((k, v))
+        else:
+            lines.append(f"{k} = {_toml_value(v)}")
+    for k, v in tables:
+        lines.append(f"\n[thresholds.{k}]")
+        for kk, vv in v.items():
+            lines.append(f'"{kk}" = {_toml_value(vv)}')
+    return "\n".join(lines) + "\n"
+
+
+def describe(th: Thresholds) -> str:
+    """A person-readable table of the thresholds."""
+    from .ukf import leak_lpm
+
+    lines = [f"CUSUM drift {th.drift:g} sigma; baseline over [{th.warmup_s:g}, {th.warmup_s + th.baseline_s:g}] s; "
+             f"false-alarm level {th.false_alarm_level:g} per {th.run_length_s:g} s run", "",
+             "| hypothesis | h [sigma s] |", "|---|---|"]
+    lines += [f"| {k} | {v:.3g} |" for k, v in th.h.items()]
+    lines += ["", "sigma (healthy spread of estimate - baseline) per regime; * = residual votes there:", "",
+              "| parameter | " + " | ".join(REGIMES) + " |", "|---|" + "---|" * len(REGIMES)]
+    for p, s in th.sigma.items():
+        conv = (lambda x: f"{100 * x:.2f} %") if p == "offset" else (lambda x: f"{float(leak_lpm(x)):.3f} L/min")
+        lines.append(f"| {p} | " + " | ".join(conv(x) + ("*" if v else "") for x, v in zip(s, th.votes[p])) + " |")
+    lines += ["", f"confusable pairs: {th.confusable}", f"source: {th.source}"]
+    return "\n".join(lines)
+
+
+def write_thresholds(th: Thresholds, report: dict, out_dir: Path) -> list[Path]:
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    p1 = out_dir / "thresholds.toml"
+    p1.write_text(to_toml(th))
+    p2 = out_dir / "thresholds.md"
+    p2.write_text("# FDI thresholds from the sensitivity ranking\n\n" + describe(th) + "\n")
+    p3 = out_dir / "thresholds_gsa.json"
+    p3.write_text(json.dumps(report, indent=1) + "\n")
+    return [p1, p2, p3]

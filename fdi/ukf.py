@@ -1,0 +1,589 @@
+"""Augmented-state Unscented Kalman Filter over ``sam``'s own step function.
+
+State (12), in SI units::
+
+    [p_A, p_B, x_s, dx_s, x, v, z,  K_int, K_extA, K_extB, offset, F_d]
+     --- the model state sam.S ---  --- slowly varying parameters ----
+
+The first seven are advanced by :func:`sam.step_batch` (Eq. (22)); the last
+five are random walks that are written into the parameter vector of each sigma
+point (columns ``K_int``, ``K_extA``, ``K_extB``, ``offset``, ``F_d`` of
+:data:`sam.P`). All sigma points of all filters of a batch go through ONE
+``step_batch`` call per time step. There is no second copy of the physics here.
+
+Internally every state is divided by :data:`SCALE` (pressures in MPa, leak
+coefficients in L/min at 10 MPa, offset in %, force in kN, ...), so that the
+covariance matrix is well conditioned. Sigma points and weights follow
+filterpy's ``MerweScaledSigmaPoints`` exactly (``tests/test_fdi_ukf.py`` checks
+the whole filter against filterpy's ``UnscentedKalmanFilter`` to 1e-9).
+
+Robustness (see docs/fdi.md):
+
+* leak coefficients are non-negative: sigma points are clipped at 0 where they
+  enter the model, and the posterior mean is projected onto K >= 0;
+* P is symmetrised after every update; a failed Cholesky factorisation is
+  retried with growing diagonal jitter, and as a last resort P is reset;
+* divergence: an exponentially weighted NIS above a chi-square bound resets the
+  covariance to its initial value (counted and reported); a non-finite state
+  resets the state to the last good one.
+* NaN measurements: the step predicts without updating those channels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numba
+import numpy as np
+
+from sam import LEAK_REFERENCE_DP, LPM, P, S, step_batch
+
+N_MODEL = 7
+#: Augmented states beyond the model state, and the parameter each one drives.
+AUG_PARAMS = ("K_int", "K_extA", "K_extB", "offset", "F_d")
+STATE_NAMES = tuple(S.__members__) + AUG_PARAMS
+N_AUG = len(STATE_NAMES)
+#: Index of the augmented states.
+I_KINT, I_KEXTA, I_KEXTB, I_OFFSET, I_FD = 7, 8, 9, 10, 11
+LEAK_STATES = (I_KINT, I_KEXTA, I_KEXTB)
+FAULT_STATES = (I_KINT, I_KEXTA, I_KEXTB, I_OFFSET)
+PARAM_COLS = np.array([int(P[name]) for name in AUG_PARAMS], dtype=np.int64)
+P_S_COL = int(P.p_S)
+param_L1, param_L2, param_L3 = int(P.L_1), int(P.L_2), int(P.L_3)
+
+#: m^3/(s Pa^0.5) per "L/min at 10 MPa": L/min = K * sqrt(10 MPa) * 60000.
+K_PER_LPM = LPM / math.sqrt(LEAK_REFERENCE_DP)
+
+#: Internal unit of each state (SI per internal unit).
+SCALE = np.array([
+    1e6, 1e6,          # p_A, p_B: MPa
+    1e-2, 1.0,         # x_s: % of travel; dx_s: 1/s
+    1e-2, 1e-2,        # x: cm; v: cm/s
+    1e-4,              # z: 0.1 mm (bristle deflection ~ F_C / sigma_0 = 0.25 mm)
+    K_PER_LPM, K_PER_LPM, K_PER_LPM,  # leaks: L/min at 10 MPa
+    1e-2,              # offset: % of travel
+    1e3,               # F_d: kN
+])
+
+#: Measurement kinds of the position channel.
+POS_X, POS_THETA = 0, 1
+#: Internal unit of each measurement: pressures MPa, x cm, theta mrad.
+MEAS_SCALE_P = 1e6
+MEAS_SCALE_X = 1e-2
+MEAS_SCALE_THETA = 1e-3
+THETA_PULSE = math.radians(0.007)  #: rad per encoder pulse (the SAM's encoder)
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Tuning of the filter. Process noise is given as a spectral density
+    (std per sqrt(second)), so that it does not depend on the sampling step."""
+
+    alpha: float = 1.0  #: Merwe sigma-point spread (filterpy convention)
+    beta: float = 2.0
+    kappa: float = 0.0
+    #: process-noise std per sqrt(s), SI units, one per state (STATE_NAMES order)
+    q: tuple = (
+        5e4, 5e4,        # p_A, p_B [Pa/sqrt(s)]: flow model error
+        1e-5, 1e-3,      # spool (deterministic given u)
+        1e-5, 5e-3,      # x [m/sqrt(s)], v [m/s/sqrt(s)]
+        1e-5,            # z
+        0.1 * K_PER_LPM, 0.1 * K_PER_LPM, 0.1 * K_PER_LPM,  # leaks [per sqrt(s)]: 0.1 L/min/sqrt(s)
+        0.001,           # offset [1/sqrt(s)]: 0.1 %/sqrt(s)
+        1e4,             # F_d [N/sqrt(s)]: unknown, changing load
+    )
+    #: initial std, SI units, one per state
+    p0: tuple = (
+        2e5, 2e5, 1e-3, 1e-2, 1e-3, 1e-3, 1e-4,
+        0.3 * K_PER_LPM, 0.3 * K_PER_LPM, 0.3 * K_PER_LPM, 0.01, 2e4,
+    )
+    pressure_noise: float = 20e3  #: Pa, std of each pressure sensor
+    x_noise: float = 1e-5  #: m, std of a linear position sensor
+    theta_pulse: float = THETA_PULSE  #: rad, encoder quantum: std = pulse / sqrt(12)
+    theta_noise_floor: float = 2e-5  #: rad, added in quadrature (timing jitter, backlash)
+    #: calibration states: parameters whose RELATIVE error is estimated along with the
+    #: faults (random walk; the state is written as nominal * (1 + c) into the parameter
+    #: row), e.g. ("Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT"): the flow coefficient of each
+    #: valve notch, the nuisance the GSA ranks first. Off by default: measured worse
+    #: (the notch scales trade off against the offset and K_extB; docs/fdi.md).
+    calibrate: tuple = ()
+    p0_calib: float = 0.02  #: initial std of each calibration state (relative)
+    q_calib: float = 0.002  #: its process-noise std per sqrt(s) (relative)
+    clip_leaks: bool = True  #: clip leak sigma points at 0 inside the model
+    project_mean: bool = True  #: project the posterior mean onto K >= 0
+    symmetrise: bool = True
+    nis_tau: float = 0.5  #: s, time constant of the exponentially weighted NIS
+    nis_factor: float = 8.0  #: reset when the weighted NIS exceeds this many times its mean (m)
+    jitter: float = 1e-9  #: first relative jitter added to the diagonal when Cholesky fails
+
+    def with_(self, **kw) -> "FilterConfig":
+        return replace(self, **kw)
+
+
+def state_names(cfg: "FilterConfig") -> tuple[str, ...]:
+    """Names of the filter states under cfg: the 12 base states, then ``c_<param>``."""
+    return STATE_NAMES + tuple(f"c_{name}" for name in cfg.calibrate)
+
+
+def state_scale(cfg: "FilterConfig") -> np.ndarray:
+    """Internal unit of every state under cfg (calibration states: 1 %)."""
+    return np.concatenate([SCALE, np.full(len(cfg.calibrate), 1e-2)])
+
+
+def param_layout(cfg: "FilterConfig") -> tuple[np.ndarray, np.ndarray]:
+    """(parameter column, relative flag) of every augmented state under cfg."""
+    for name in cfg.calibrate:
+        if name not in P.__members__:
+            raise ValueError(f"calibrate: {name!r} is not a parameter of sam.P")
+    cols = np.concatenate([PARAM_COLS, np.array([int(P[n]) for n in cfg.calibrate], dtype=np.int64)])
+    rel = np.concatenate([np.zeros(len(PARAM_COLS)), np.ones(len(cfg.calibrate))])
+    return cols.astype(np.int64), rel
+
+
+def noise_vectors(cfg: "FilterConfig") -> tuple[np.ndarray, np.ndarray]:
+    """(q, p0) in SI units (relative for calibration states), one per state."""
+    nc = len(cfg.calibrate)
+    q = np.concatenate([np.asarray(cfg.q, float), np.full(nc, cfg.q_calib)])
+    p0 = np.concatenate([np.asarray(cfg.p0, float), np.full(nc, cfg.p0_calib)])
+    return q, p0
+
+
+def merwe_weights(n: int, alpha: float, beta: float, kappa: float):
+    """filterpy's MerweScaledSigmaPoints weights (Wm, Wc) and lambda."""
+    lam = alpha**2 * (n + kappa) - n
+    c = 0.5 / (n + lam)
+    Wm = np.full(2 * n + 1, c)
+    Wc = np.full(2 * n + 1, c)
+    Wm[0] = lam / (n + lam)
+    Wc[0] = lam / (n + lam) + (1.0 - alpha**2 + beta)
+    return Wm, Wc, lam
+
+
+# ---------------------------------------------------------------- compiled core
+
+
+@numba.njit(cache=True)
+def _cholesky(A, L):
+    """Lower Cholesky factor of A into L; returns False if A is not positive definite."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+        for j in range(i + 1, n):
+            L[i, j] = 0.0
+    return True
+
+
+@numba.njit(cache=True)
+def _chol_solve(L, b, out):
+    """Solve (L L^T) out = b for a vector b."""
+    n = L.shape[0]
+    y = np.empty(n)
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * y[k]
+        y[i] = s / L[i, i]
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for k in range(i + 1, n):
+            s -= L[k, i] * out[k]
+        out[i] = s / L[i, i]
+
+
+@numba.njit(cache=True)
+def _robust_sqrt(P, c, jitter, L):
+    """Cholesky of c*P with growing jitter; returns the number of jitter tries (-1: failed)."""
+    n = P.shape[0]
+    A = c * P
+    if _cholesky(A, L):
+        return 0
+    scale = 0.0
+    for i in range(n):
+        scale = max(scale, abs(A[i, i]))
+    if scale == 0.0 or not math.isfinite(scale):
+        return -1
+    eps = jitter
+    for tries in range(1, 12):
+        B = A.copy()
+        for i in range(n):
+            B[i, i] += eps * scale
+        if _cholesky(B, L):
+            return tries
+        eps *= 10.0
+    return -1
+
+
+@numba.njit(cache=True)
+def _measure(sig, pos_kind, L1, L2, L3, out):
+    """Measurement function of one scaled state: [p_A, p_B, x or theta] (scaled)."""
+    out[0] = sig[0] * (1e6 / MEAS_SCALE_P)
+    out[1] = sig[1] * (1e6 / MEAS_SCALE_P)
+    x = sig[4] * 1e-2
+    if pos_kind == POS_X:
+        out[2] = x / MEAS_SCALE_X
+    else:
+        c = (L1 * L1 + L2 * L2 - (x + L3) ** 2) / (2.0 * L1 * L2)
+        c = min(1.0, max(-1.0, c))
+        out[2] = math.acos(c) / MEAS_SCALE_THETA
+
+
+@numba.njit(cache=True)
+def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind, Wm, Wc, lam,
+         clip_leaks, project_mean, symmetrise, nis_alpha, nis_limit, jitter, dt,
+         out_z, out_sd, out_nu, out_nis, counts):
+    """Run B filters over T samples.
+
+    z0 (B,n) scaled initial means; P0 (B,n,n); Qd (n,n) scaled process noise per
+    step; Rd (m,) scaled measurement variances; u (B,T); y (B,T,m) scaled, NaN =
+    missing; pS (B,T) measured supply pressure [Pa] or NaN; base (B,np) parameter
+    vectors; param_cols (n-7,) the parameter column each augmented state drives,
+    param_rel (n-7,) 1 where the state is a relative error of the nominal value
+    (calibration states) and 0 where it is the value itself; out_z/out_sd (B,T,n) posterior mean and std (scaled); out_nu (B,T,m)
+    normalised innovations (NaN where not measured); out_nis (B,T) weighted NIS;
+    counts (B,4): [nan samples, jitter events, covariance resets, state resets].
+    """
+    B, n = z0.shape
+    T = u.shape[1]
+    m = Rd.shape[0]
+    ns = 2 * n + 1
+    npar = base.shape[1]
+    z = z0.copy()
+    Pm = P0.copy()
+    z_good = z0.copy()
+    L = np.empty((n, n))
+    sig = np.empty((B, ns, n))
+    states = np.empty((B * ns, N_MODEL))
+    uu = np.empty(B * ns)
+    params = np.empty((B * ns, npar))
+    for b in range(B):
+        for i in range(ns):
+            params[b * ns + i, :] = base[b, :]
+    ewnis = np.full(B, float(m))
+    hs = np.empty((ns, m))
+    zp = np.empty(m)
+    Sm = np.empty((m, m))
+    Pxz = np.empty((n, m))
+    Ls = np.empty((m, m))
+    col = np.empty(m)
+    kcol = np.empty(m)
+    for k in range(T):
+        # ---------------- predict (from the posterior at k-1, with u[k-1])
+        if k > 0:
+            for b in range(B):
+                tries = _robust_sqrt(Pm[b], n + lam, jitter, L)
+                if tries < 0:  # last resort: start the covariance afresh
+                    Pm[b, :, :] = P0[b]
+                    counts[b, 2] += 1
+                    tries = _robust_sqrt(Pm[b], n + lam, jitter, L)
+                elif tries > 0:
+                    counts[b, 1] += 1
+                # filterpy: sigmas[k+1] = x + U[k], U = cholesky upper = L^T -> U[k] = L[:, k]
+                for j in range(n):
+                    sig[b, 0, j] = z[b, j]
+                for i in range(n):
+                    for j in range(n):
+                        sig[b, 1 + i, j] = z[b, j] + L[j, i]
+                        sig[b, 1 + n + i, j] = z[b, j] - L[j, i]
+                for i in range(ns):
+                    r = b * ns + i
+                    for j in range(N_MODEL):
+                        states[r, j] = sig[b, i, j] * scale[j]
+                    uu[r] = u[b, k - 1]
+                    for a in range(param_cols.shape[0]):
+                        v = sig[b, i, N_MODEL + a] * scale[N_MODEL + a]
+                        if clip_leaks and a < 3 and v < 0.0:
+                            v = 0.0
+                        if param_rel[a]:  # calibration state: relative error of a nominal value
+                            v = base[b, param_cols[a]] * (1.0 + v)
+                        params[r, param_cols[a]] = v
+                    ps = pS[b, k - 1]
+                    if ps == ps:  # measured supply pressure is an input
+                        params[r, P_S_COL] = ps
+            new, _flags = step_batch(states, uu, params, dt)
+            for b in range(B):
+                for i in range(ns):
+                    r = b * ns + i
+                    for j in range(N_MODEL):
+                        sig[b, i, j] = new[r, j] / scale[j]
+                # unscented transform of the propagated points
+                for j in range(n):
+                    acc = 0.0
+                    for i in range(ns):
+                        acc += Wm[i] * sig[b, i, j]
+                    z[b, j] = acc
+                for j in range(n):
+                    for l in range(j + 1):
+                        acc = 0.0
+                        for i in range(ns):
+                            acc += Wc[i] * (sig[b, i, j] - z[b, j]) * (sig[b, i, l] - z[b, l])
+                        Pm[b, j, l] = acc + Qd[j, l]
+                        Pm[b, l, j] = acc + Qd[l, j]
+        # filterpy (1.4.5) redraws the sigma points from the prior (x-, P- including Q)
+        # for the update; so do we (at k = 0 the prior is the initial x0, P0).
+        for b in range(B):
+            tries = _robust_sqrt(Pm[b], n + lam, jitter, L)
+            if tries < 0:
+                Pm[b, :, :] = P0[b]
+                counts[b, 2] += 1
+                tries = _robust_sqrt(Pm[b], n + lam, jitter, L)
+            elif tries > 0:
+                counts[b, 1] += 1
+            for j in range(n):
+                sig[b, 0, j] = z[b, j]
+            for i in range(n):
+                for j in range(n):
+                    sig[b, 1 + i, j] = z[b, j] + L[j, i]
+                    sig[b, 1 + n + i, j] = z[b, j] - L[j, i]
+        # ---------------- update
+        for b in range(B):
+            L1 = base[b, param_L1]
+            L2 = base[b, param_L2]
+            L3 = base[b, param_L3]
+            # which channels are measured
+            nvalid = 0
+            for c in range(m):
+                if y[b, k, c] == y[b, k, c]:
+                    nvalid += 1
+            if nvalid < m:
+                counts[b, 0] += 1
+            for c in range(m):
+                out_nu[b, k, c] = np.nan
+            if nvalid > 0:
+                idx = np.empty(nvalid, dtype=np.int64)
+                q = 0
+                for c in range(m):
+                    if y[b, k, c] == y[b, k, c]:
+                        idx[q] = c
+                        q += 1
+                for i in range(ns):
+                    _measure(sig[b, i], pos_kind, L1, L2, L3, col)
+                    for c in range(m):
+                        hs[i, c] = col[c]
+                mv = nvalid
+                for c in range(mv):
+                    acc = 0.0
+                    for i in range(ns):
+                        acc += Wm[i] * hs[i, idx[c]]
+                    zp[c] = acc
+                for c in range(mv):
+                    for e in range(mv):
+                        acc = 0.0
+                        for i in range(ns):
+                            acc += Wc[i] * (hs[i, idx[c]] - zp[c]) * (hs[i, idx[e]] - zp[e])
+                        Sm[c, e] = acc
+                    Sm[c, c] += Rd[idx[c]]
+                for j in range(n):
+                    for c in range(mv):
+                        acc = 0.0
+                        for i in range(ns):
+                            acc += Wc[i] * (sig[b, i, j] - z[b, j]) * (hs[i, idx[c]] - zp[c])
+                        Pxz[j, c] = acc
+                Ssub = Sm[:mv, :mv].copy()
+                Lsub = Ls[:mv, :mv]
+                ok = _cholesky(Ssub, Lsub)
+                if ok:
+                    innov = np.empty(mv)
+                    for c in range(mv):
+                        innov[c] = y[b, k, idx[c]] - zp[c]
+                        out_nu[b, k, idx[c]] = innov[c] / math.sqrt(Ssub[c, c])
+                    w = np.empty(mv)
+                    _chol_solve(Lsub, innov, w)
+                    nis = 0.0
+                    for c in range(mv):
+                        nis += innov[c] * w[c]
+                    # K = Pxz S^-1 (rows of K solve S K_j^T = Pxz_j^T)
+                    Kg = np.empty((n, mv))
+                    for j in range(n):
+                        _chol_solve(Lsub, Pxz[j, :mv].copy(), kcol[:mv])
+                        for c in range(mv):
+                            Kg[j, c] = kcol[c]
+                    for j in range(n):
+                        acc = 0.0
+                        for c in range(mv):
+                            acc += Kg[j, c] * innov[c]
+                        z[b, j] += acc
+                    # P -= K S K^T  (= K Pxz^T)
+                    for j in range(n):
+                        for l in range(n):
+                            acc = 0.0
+                            for c in range(mv):
+                                acc += Kg[j, c] * Pxz[l, c]
+                            Pm[b, j, l] -= acc
+                    ewnis[b] += nis_alpha * (nis * m / mv - ewnis[b])
+            # ---------------- constraints and health checks
+            if symmetrise:
+                for j in range(n):
+                    for l in range(j):
+                        a = 0.5 * (Pm[b, j, l] + Pm[b, l, j])
+                        Pm[b, j, l] = a
+                        Pm[b, l, j] = a
+            if project_mean:
+                for j in range(N_MODEL, N_MODEL + 3):
+                    if z[b, j] < 0.0:
+                        z[b, j] = 0.0
+            finite = True
+            for j in range(n):
+                if not math.isfinite(z[b, j]):
+                    finite = False
+            if not finite:
+                for j in range(n):
+                    z[b, j] = z_good[b, j]
+                Pm[b, :, :] = P0[b]
+                counts[b, 3] += 1
+                ewnis[b] = float(m)
+            else:
+                for j in range(n):
+                    z_good[b, j] = z[b, j]
+            if ewnis[b] > nis_limit:
+                # divergence: the innovations are far larger than the filter believes
+                for j in range(n):
+                    Pm[b, j, j] = max(Pm[b, j, j], P0[b, j, j])
+                counts[b, 2] += 1
+                ewnis[b] = float(m)
+            out_nis[b, k] = ewnis[b]
+            for j in range(n):
+                out_z[b, k, j] = z[b, j]
+                out_sd[b, k, j] = math.sqrt(max(Pm[b, j, j], 0.0))
+
+
+# ---------------------------------------------------------------- Python face
+
+
+@dataclass
+class FilterInput:
+    """Measured data of B runs, all of the same length and sampling step."""
+
+    dt: float
+    u: np.ndarray  #: (B, T) V
+    pA: np.ndarray  #: (B, T) Pa, NaN = missing
+    pB: np.ndarray  #: (B, T) Pa
+    pos: np.ndarray  #: (B, T) m (x) or rad (theta)
+    pos_kind: int  #: POS_X or POS_THETA
+    params: np.ndarray  #: (B, len(P)) nominal plant vectors (healthy faults)
+    pS: np.ndarray | None = None  #: (B, T) Pa, or None
+
+    @property
+    def shape(self):
+        return self.u.shape
+
+
+@dataclass
+class FilterOutput:
+    t: np.ndarray  #: (T,)
+    mean: np.ndarray  #: (B, T, 12), SI units
+    std: np.ndarray  #: (B, T, 12), SI units
+    nu: np.ndarray  #: (B, T, 3) normalised innovations [pA, pB, position]
+    nis: np.ndarray  #: (B, T) exponentially weighted NIS
+    n_nan: np.ndarray  #: (B,) samples with at least one channel missing
+    n_jitter: np.ndarray
+    n_cov_reset: np.ndarray
+    n_state_reset: np.ndarray
+    config: FilterConfig = field(default_factory=FilterConfig)
+    u: np.ndarray | None = None  #: (B, T) the input the filter was driven with
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return state_names(self.config)
+
+    def estimate(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        j = self.names.index(name)
+        return self.mean[:, :, j], self.std[:, :, j]
+
+
+def measurement_variances(cfg: FilterConfig, pos_kind: int) -> np.ndarray:
+    """Scaled measurement variances [pA, pB, position]."""
+    rp = (cfg.pressure_noise / MEAS_SCALE_P) ** 2
+    if pos_kind == POS_X:
+        rx = (cfg.x_noise / MEAS_SCALE_X) ** 2
+    else:
+        rx = (cfg.theta_pulse**2 / 12.0 + cfg.theta_noise_floor**2) / MEAS_SCALE_THETA**2
+    return np.array([rp, rp, rx])
+
+
+def scaled_measurements(inp: FilterInput) -> np.ndarray:
+    pos_scale = MEAS_SCALE_X if inp.pos_kind == POS_X else MEAS_SCALE_THETA
+    return np.ascontiguousarray(np.stack(
+        [inp.pA / MEAS_SCALE_P, inp.pB / MEAS_SCALE_P, inp.pos / pos_scale], axis=-1))
+
+
+def initial_mean(inp: FilterInput, cfg: "FilterConfig | None" = None) -> np.ndarray:
+    """Scaled initial means from the first finite measurements: the filter starts at
+    the measured pressures and position, at rest, with healthy fault parameters and
+    zero calibration errors."""
+    from sam.geometry import piston_position
+
+    cfg = FilterConfig() if cfg is None else cfg
+    B = inp.u.shape[0]
+    n = N_AUG + len(cfg.calibrate)
+    scale = state_scale(cfg)
+    z0 = np.zeros((B, n))
+    for b in range(B):
+        pa = _first_finite(inp.pA[b])
+        pb = _first_finite(inp.pB[b])
+        pos = _first_finite(inp.pos[b])
+        p = inp.params[b]
+        x = pos if inp.pos_kind == POS_X else float(piston_position(pos, p[P.L_1], p[P.L_2], p[P.L_3]))
+        x = max(x, 0.0)
+        full = np.zeros(n)
+        full[S.p_A], full[S.p_B], full[S.x] = pa, pb, x
+        full[N_MODEL:N_AUG] = p[PARAM_COLS]
+        z0[b] = full / scale
+    return z0
+
+
+def _first_finite(a: np.ndarray) -> float:
+    idx = np.flatnonzero(np.isfinite(a))
+    return float(a[idx[0]]) if len(idx) else 0.0
+
+
+def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndarray | None = None,
+               P0: np.ndarray | None = None) -> FilterOutput:
+    """Run the batched filter over B runs at once (one step_batch call per time step)."""
+    B, T = inp.u.shape
+    n = N_AUG + len(cfg.calibrate)
+    scale = state_scale(cfg)
+    cols, rel = param_layout(cfg)
+    q, p0 = noise_vectors(cfg)
+    Wm, Wc, lam = merwe_weights(n, cfg.alpha, cfg.beta, cfg.kappa)
+    if z0 is None:
+        z0 = initial_mean(inp, cfg)
+    if P0 is None:
+        P0 = np.broadcast_to(np.diag((p0 / scale) ** 2), (B, n, n)).copy()
+    Qd = np.diag((q * math.sqrt(inp.dt) / scale) ** 2)
+    Rd = measurement_variances(cfg, inp.pos_kind)
+    y = scaled_measurements(inp)
+    pS = np.full((B, T), np.nan) if inp.pS is None else np.ascontiguousarray(inp.pS, dtype=float)
+    m = 3
+    out_z = np.empty((B, T, n))
+    out_sd = np.empty((B, T, n))
+    out_nu = np.empty((B, T, m))
+    out_nis = np.empty((B, T))
+    counts = np.zeros((B, 4), dtype=np.int64)
+    nis_alpha = min(1.0, inp.dt / cfg.nis_tau) if cfg.nis_tau > 0 else 1.0
+    nis_limit = cfg.nis_factor * m if cfg.nis_factor > 0 else np.inf
+    _run(np.ascontiguousarray(z0, dtype=float), np.ascontiguousarray(P0, dtype=float), Qd, Rd,
+         np.ascontiguousarray(inp.u, dtype=float), y, pS,
+         np.ascontiguousarray(inp.params, dtype=float), scale, cols, rel, int(inp.pos_kind),
+         Wm, Wc, float(lam), bool(cfg.clip_leaks), bool(cfg.project_mean), bool(cfg.symmetrise),
+         float(nis_alpha), float(nis_limit), float(cfg.jitter), float(inp.dt),
+         out_z, out_sd, out_nu, out_nis, counts)
+    return FilterOutput(
+        t=np.arange(T) * inp.dt, mean=out_z * scale, std=out_sd * scale, nu=out_nu, nis=out_nis,
+        n_nan=counts[:, 0], n_jitter=counts[:, 1], n_cov_reset=counts[:, 2], n_state_reset=counts[:, 3],
+        config=cfg, u=inp.u,
+    )
+
+
+def leak_lpm(K: np.ndarray) -> np.ndarray:
+    """Leak coefficient [m^3/(s Pa^0.5)] -> L/min at 10 MPa."""
+    return np.asarray(K) * math.sqrt(LEAK_REFERENCE_DP) * 60000.0

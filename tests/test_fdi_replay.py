@@ -1,0 +1,160 @@
+"""Replay end to end: detection, isolation and size of a known leak; healthy runs;
+bad input; the CLI never shows a traceback."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from sam import Recording, load_plant, write_recording
+from samfdi.cli import main
+from fdi.detect import Thresholds, diagnose, statistics
+from fdi.montecarlo import make_batch
+from fdi.synth import input_signal, lpm, profile, simulate_runs
+from fdi.ukf import run_filter
+
+DT = 1e-3
+
+
+def _recording(faults=None, T=5001, seed=5, with_truth=True):
+    p = load_plant().vector()
+    t = np.arange(T) * DT
+    u = input_signal("sine", t, amplitude=3.0, frequency=0.25)
+    fa = None if faults is None else {k: f(t) for k, f in faults.items()}
+    r = simulate_runs(p[None], u, DT, faults=fa, seed=seed)
+    sig = {"u": u, "pA": r.inp.pA[0], "pB": r.inp.pB[0], "theta": r.inp.pos[0]}
+    truth = {f"true_{k}": v for k, v in (fa or {}).items()} if with_truth else {}
+    return Recording(t, sig, truth, {"description": "test"})
+
+
+@pytest.fixture(scope="module")
+def leak_csv(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rec") / "leakA.csv"
+    write_recording(path, _recording({"K_extA": lambda t: profile("step", lpm(1.0), t, t0=2.0)}))
+    return path
+
+
+def test_known_leak_detected_isolated_and_sized(leak_csv, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["fdi", "replay", str(leak_csv), "--out", str(out)]) == 0
+    d = json.loads((out / "diagnosis.json").read_text())
+    assert d["status"] == "fault"
+    assert d["isolated"] == ["K_extA"]
+    assert 2.0 < d["detection_time_s"] < 3.0  # within 1 s of onset
+    assert d["size"]["K_extA"]["value"] == pytest.approx(1.0, abs=0.15)  # stated tolerance: 0.15 L/min
+    header = (out / "estimates.csv").read_text().splitlines()[0].split(",")
+    for col in ("t", "K_extA", "K_extA_lo2s", "K_extA_hi2s", "K_extA_Lpm", "offset", "F_d"):
+        assert col in header
+    assert (out / "residuals.csv").exists() and (out / "replay.png").stat().st_size > 1000
+    # refuses to overwrite, then --force works
+    assert main(["fdi", "replay", str(leak_csv), "--out", str(out)]) == 2
+    assert "already holds" in capsys.readouterr().err
+    assert main(["fdi", "replay", str(leak_csv), "--out", str(out), "--force"]) == 0
+
+
+def test_replay_never_reads_truth(leak_csv, tmp_path):
+    from sam import read_recording
+    import fdi
+    rec = read_recording(leak_csv)
+    d1 = fdi.replay_recording(rec, load_plant(), tmp_path / "a", figure=False)
+    lie = Recording(rec.t, rec.signals, {k: np.zeros_like(v) + 1.0 for k, v in rec.truth.items()}, rec.metadata)
+    d2 = fdi.replay_recording(lie, load_plant(), tmp_path / "b", figure=False)
+    assert d1.alarms == d2.alarms and d1.size == d2.size
+
+
+def test_healthy_recording_raises_no_alarm(tmp_path):
+    rec = _recording(None, seed=9)
+    import fdi
+    d = fdi.replay_recording(rec, load_plant(), tmp_path / "h", figure=False)
+    assert d.status == "healthy", d.alarms
+
+
+def test_nan_gap_predicted_through_and_reported(tmp_path):
+    rec = _recording({"K_extA": lambda t: profile("step", lpm(1.0), t, t0=2.0)})
+    for ch in ("pA", "pB", "theta"):
+        rec.signals[ch][3000:3100] = np.nan
+    import fdi
+    d = fdi.replay_recording(rec, load_plant(), tmp_path / "g", figure=False)
+    assert d.filter_health["nan_samples"] == 100
+    assert d.isolated == ["K_extA"]
+
+
+def test_bad_input_messages(tmp_path, capsys):
+    rec = _recording(None, T=2001)
+    rec.signals["pA"][500] = 3.1e7
+    path = tmp_path / "range.csv"
+    write_recording(path, rec)
+    assert main(["fdi", "replay", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "'pA'" in err and "outside the sensor range" in err and "row 501" in err and "Traceback" not in err
+    assert main(["fdi", "replay", str(path), "--out", str(tmp_path / "o"), "--drop-out-of-range"]) == 0
+    # unobservable plant: a huge dead volume swallows every leak
+    plant = tmp_path / "plant.toml"
+    plant.write_text("[cylinder]\nV_0A = 1e3\nV_0B = 1e3\n")
+    path2 = tmp_path / "ok.csv"
+    write_recording(path2, _recording(None, T=2001))
+    assert main(["fdi", "replay", str(path2), "--plant", str(plant), "--out", str(tmp_path / "u")]) == 2
+    assert "unobservable" in capsys.readouterr().err
+    # coarse sampling
+    rec3 = _recording(None, T=2001)
+    coarse = Recording(rec3.t[::5], {k: v[::5] for k, v in rec3.signals.items()})
+    path3 = tmp_path / "coarse.csv"
+    write_recording(path3, coarse)
+    assert main(["fdi", "replay", str(path3), "--out", str(tmp_path / "c")]) == 2
+    assert "sampling step" in capsys.readouterr().err
+
+
+def test_small_leak_mid_run_detected_and_isolated():
+    """Nominal plant (no model error), sine 3 V 0.25 Hz, 494 kg: a 0.25 L/min internal leak
+    stepping in at 2 s is detected by the change test and isolated as K_int; the healthy
+    twin (same noise) raises nothing. Measured: alarms 2.8-2.9 s after the onset, i.e. NOT
+    within the 1 s target (docs/fdi.md); 0.25 L/min external leaks are not detected at all."""
+    p = load_plant().vector()
+    t = np.arange(5001) * DT
+    u = input_signal("sine", t, amplitude=3.0, frequency=0.25)
+    th = Thresholds.shipped()
+    for fault, expect in (({"K_int": profile("step", lpm(0.25), t, t0=2.0)}, ["K_int"]), (None, [])):
+        r = simulate_runs(np.tile(p, (2, 1)), u, DT, faults=fault, seed=5)
+        out = run_filter(r.inp)
+        st = statistics(out, th)
+        for b in range(2):
+            d = diagnose(out, th, b, st)
+            assert d.isolated == expect, (d.status, d.alarms)
+            if expect:
+                assert 2.0 < d.detection_time_s < 5.0
+                assert d.size["K_int"]["value"] == pytest.approx(0.25, abs=0.12)
+
+
+def test_thresholds_file_round_trip_and_rule(tmp_path):
+    """The shipped thresholds come from the GSA rule; the TOML writer round-trips."""
+    from fdi.detect import REGIMES
+    from fdi.thresholds import to_toml
+    th = Thresholds.shipped()
+    assert "GSA" in th.source
+    assert set(th.h) == {"K_int", "K_extA", "K_extB", "offset+", "offset-"}
+    for p_, s in th.sigma.items():
+        assert len(s) == len(REGIMES) and all(v > 0 for v in s)
+        assert any(th.votes[p_])
+    path = tmp_path / "t.toml"
+    path.write_text(to_toml(th))
+    assert Thresholds.load(path) == th
+
+
+@pytest.mark.slow
+def test_held_out_healthy_false_alarms_and_large_leak_detection():
+    """Reduced-size statistics on runs NOT used to set the thresholds: 40 healthy runs
+    under unknown loads 0-800 kg and model uncertainty. Measured false-alarm rate at
+    full size is 4 % per 4 s run (docs/fdi.md), above the 1 % target; this checks that it
+    stays under 10 % here (binomial slack at n = 40). 1 L/min external leaks A are found."""
+    plant = load_plant()
+    th = Thresholds.shipped()
+    healthy = run_filter(make_batch(plant, 40, 777).inp)
+    st = statistics(healthy, th)
+    alarms = sum(diagnose(healthy, th, b, st).status != "healthy" for b in range(40))
+    assert alarms <= 4
+    faulty = run_filter(make_batch(plant, 10, 321, fault="K_extA", size=1.0).inp)
+    st = statistics(faulty, th)
+    diags = [diagnose(faulty, th, b, st) for b in range(10)]
+    assert sum("K_extA" in d.alarms for d in diags) >= 8
