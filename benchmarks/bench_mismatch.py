@@ -15,7 +15,7 @@ from pathlib import Path
 
 import sam
 from discrepancy import diagnose
-from scenarios.mismatch.generate import CASES, make_recording
+from discrepancy.cases import CASES, make_recording
 
 
 def main() -> None:

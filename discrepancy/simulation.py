@@ -18,11 +18,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 import numba
 
 from sam import P, S, simulate_batch
+from sam.measurement import first_order_lag, time_delay
 from sam.dynamics import N_DERIVED, N_STATES, derive, rhs
 from sam.friction import seal_loaded, stribeck
 
@@ -60,29 +60,6 @@ _CHANNEL = {"pA": "p_A", "pB": "p_B", "x": "x"}
 MEAS_PARAMS = ("tau_sensor", "delay_sensor")
 #: Floors of the per-signal scales (a signal that barely moves is weighted by its noise, not by zero).
 SCALE_FLOOR = {"pA": 1e5, "pB": 1e5, "x": 2e-3}
-
-
-def first_order_lag(y: np.ndarray, dt: float, tau_s: float) -> np.ndarray:
-    """First-order sensor lag along the last axis, started at rest at the first sample."""
-    if tau_s <= 0:
-        return y
-    a = np.exp(-dt / tau_s)
-    zi = (a * y[..., :1])
-    out, _ = lfilter([1 - a], [1, -a], y, axis=-1, zi=zi)
-    return out
-
-
-def time_delay(y: np.ndarray, dt: float, delay_s: float) -> np.ndarray:
-    """y(t - delay) along the last axis, fractional delays by linear interpolation; holds the first sample."""
-    if delay_s <= 0:
-        return y
-    n = y.shape[-1]
-    tq = np.arange(n) - delay_s / dt
-    i0 = np.clip(np.floor(tq).astype(int), 0, n - 1)
-    i1 = np.clip(i0 + 1, 0, n - 1)
-    w = np.clip(tq - np.floor(tq), 0, 1)
-    w = np.where(tq < 0, 0.0, w)
-    return y[..., i0] * (1 - w) + y[..., i1] * w
 
 
 @dataclass

@@ -107,11 +107,20 @@ class FilterConfig:
     #: row), e.g. ("Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT"): the flow coefficient of each
     #: valve notch, the nuisance the GSA ranks first. Off by default: measured worse
     #: (the notch scales trade off against the offset and K_extB; docs/fdi.md).
-    calibrate: tuple = ()
+    calibrate: tuple = ("m_L",)
     p0_calib: float = 0.02  #: initial std of each calibration state (relative)
     q_calib: float = 0.002  #: its process-noise std per sqrt(s) (relative)
-    clip_leaks: bool = True  #: clip leak sigma points at 0 inside the model
-    project_mean: bool = True  #: project the posterior mean onto K >= 0
+    #: per-parameter (name, p0, q) overrides of p0_calib/q_calib. The load mass is
+    #: unknown (0-800 kg around a nominal 494 kg): relative std 0.25, 0.05/sqrt(s).
+    calib_noise: tuple = (("m_L", 0.25, 0.05),)
+    #: clip leak sigma points at 0 inside the model. Off: with the truth at the bound
+    #: K = 0 the clipped sigma points bias the predicted flows and make the healthy
+    #: estimates drift in hold phases (docs/fdi.md, diagnosis table).
+    clip_leaks: bool = False
+    #: report the posterior mean projected onto K >= 0 (the filter itself keeps the
+    #: unconstrained Gaussian posterior unless ``project_internal``)
+    project_mean: bool = True
+    project_internal: bool = False
     symmetrise: bool = True
     nis_tau: float = 0.5  #: s, time constant of the exponentially weighted NIS
     nis_factor: float = 8.0  #: reset when the weighted NIS exceeds this many times its mean (m)
@@ -144,8 +153,11 @@ def param_layout(cfg: "FilterConfig") -> tuple[np.ndarray, np.ndarray]:
 def noise_vectors(cfg: "FilterConfig") -> tuple[np.ndarray, np.ndarray]:
     """(q, p0) in SI units (relative for calibration states), one per state."""
     nc = len(cfg.calibrate)
-    q = np.concatenate([np.asarray(cfg.q, float), np.full(nc, cfg.q_calib)])
-    p0 = np.concatenate([np.asarray(cfg.p0, float), np.full(nc, cfg.p0_calib)])
+    over = {name: (p0_, q_) for name, p0_, q_ in cfg.calib_noise}
+    qc = [over.get(name, (cfg.p0_calib, cfg.q_calib))[1] for name in cfg.calibrate]
+    pc = [over.get(name, (cfg.p0_calib, cfg.q_calib))[0] for name in cfg.calibrate]
+    q = np.concatenate([np.asarray(cfg.q, float), np.asarray(qc, float)])
+    p0 = np.concatenate([np.asarray(cfg.p0, float), np.asarray(pc, float)])
     return q, p0
 
 
@@ -239,7 +251,7 @@ def _measure(sig, pos_kind, L1, L2, L3, out):
 
 @numba.njit(cache=True)
 def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind, Wm, Wc, lam,
-         clip_leaks, project_mean, symmetrise, nis_alpha, nis_limit, jitter, dt,
+         clip_leaks, project_mean, project_internal, symmetrise, nis_alpha, nis_limit, jitter, dt,
          out_z, out_sd, out_nu, out_nis, counts):
     """Run B filters over T samples.
 
@@ -304,7 +316,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                         if clip_leaks and a < 3 and v < 0.0:
                             v = 0.0
                         if param_rel[a]:  # calibration state: relative error of a nominal value
-                            v = base[b, param_cols[a]] * (1.0 + v)
+                            v = base[b, param_cols[a]] * (1.0 + max(v, -0.95))
                         params[r, param_cols[a]] = v
                     ps = pS[b, k - 1]
                     if ps == ps:  # measured supply pressure is an input
@@ -427,7 +439,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                         a = 0.5 * (Pm[b, j, l] + Pm[b, l, j])
                         Pm[b, j, l] = a
                         Pm[b, l, j] = a
-            if project_mean:
+            if project_mean and project_internal:
                 for j in range(N_MODEL, N_MODEL + 3):
                     if z[b, j] < 0.0:
                         z[b, j] = 0.0
@@ -454,6 +466,10 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
             for j in range(n):
                 out_z[b, k, j] = z[b, j]
                 out_sd[b, k, j] = math.sqrt(max(Pm[b, j, j], 0.0))
+            if project_mean:  # reported leak estimates are non-negative
+                for j in range(N_MODEL, N_MODEL + 3):
+                    if out_z[b, k, j] < 0.0:
+                        out_z[b, k, j] = 0.0
 
 
 # ---------------------------------------------------------------- Python face
@@ -574,7 +590,8 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     _run(np.ascontiguousarray(z0, dtype=float), np.ascontiguousarray(P0, dtype=float), Qd, Rd,
          np.ascontiguousarray(inp.u, dtype=float), y, pS,
          np.ascontiguousarray(inp.params, dtype=float), scale, cols, rel, int(inp.pos_kind),
-         Wm, Wc, float(lam), bool(cfg.clip_leaks), bool(cfg.project_mean), bool(cfg.symmetrise),
+         Wm, Wc, float(lam), bool(cfg.clip_leaks), bool(cfg.project_mean), bool(cfg.project_internal),
+         bool(cfg.symmetrise),
          float(nis_alpha), float(nis_limit), float(cfg.jitter), float(inp.dt),
          out_z, out_sd, out_nu, out_nis, counts)
     return FilterOutput(

@@ -124,6 +124,13 @@ class SobolResult:
         return int(output)
 
 
+def _label(name: str, times: np.ndarray | None, j: int) -> str:
+    """An output's name for messages, with its time when it has one: 'v' at 0.01 s."""
+    if times is None or not math.isfinite(times[j]):
+        return repr(name)
+    return f"{name!r} at {times[j]:g} s"
+
+
 def _fmt(v) -> str:
     if isinstance(v, float):
         return "nan" if math.isnan(v) else repr(v)
@@ -221,7 +228,7 @@ def analyze(
     )
     if res.constant.any():
         flat = np.flatnonzero(res.constant)
-        listed = ", ".join(repr(names[j]) for j in flat[:10])
+        listed = ", ".join(_label(names[j], times, j) for j in flat[:10])
         more = f" and {len(flat) - 10} more" if len(flat) > 10 else ""
         warnings.warn(
             f"{len(flat)} of {M} outputs do not vary over the design, so their Sobol' "

@@ -37,20 +37,26 @@ class Sensors:
 
 
 def first_order_lag(y: np.ndarray, dt: float, tau_s: float) -> np.ndarray:
-    """A sensor's first-order lag, ``tau dy_m/dt = y - y_m``, discretised exactly (ZOH); y (n,)."""
+    """A sensor's first-order lag ``tau dy_m/dt = y - y_m`` along the last axis of ``y``
+    (exact for a sampled hold), started at rest at the first sample; y (..., n)."""
     if tau_s <= 0:
-        return y.copy()
+        return y
     a = np.exp(-dt / tau_s)
-    out, _ = lfilter([1 - a], [1, -a], y, zi=[a * y[0]])
+    out, _ = lfilter([1 - a], [1, -a], y, axis=-1, zi=a * y[..., :1])
     return out
 
 
 def time_delay(y: np.ndarray, dt: float, delay_s: float) -> np.ndarray:
-    """``y(t - delay)``, holding the first sample before the start; y (n,)."""
-    k = int(round(delay_s / dt))
-    if k <= 0:
-        return y.copy()
-    return np.concatenate([np.full(k, y[0]), y[:-k]])
+    """``y(t - delay)`` along the last axis, holding the first sample before the start;
+    fractional delays by linear interpolation; y (..., n)."""
+    if delay_s <= 0:
+        return y
+    n = y.shape[-1]
+    tq = np.arange(n) - delay_s / dt
+    i0 = np.clip(np.floor(tq).astype(int), 0, n - 1)
+    i1 = np.clip(i0 + 1, 0, n - 1)
+    w = np.where(tq < 0, 0.0, np.clip(tq - np.floor(tq), 0, 1))
+    return y[..., i0] * (1 - w) + y[..., i1] * w
 
 
 def quantise_angle(theta: np.ndarray) -> np.ndarray:

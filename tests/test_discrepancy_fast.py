@@ -11,9 +11,10 @@ import pytest
 import sam
 from discrepancy import diagnose, library
 from discrepancy.data import prepare
-from discrepancy.simulation import MEAS_PARAMS, first_order_lag, fit_percent, time_delay
+from discrepancy.simulation import MEAS_PARAMS, fit_percent
+from sam.measurement import first_order_lag, time_delay
 from sam.errors import UserError
-from scenarios.mismatch.generate import CASES, make_recording
+from discrepancy.cases import CASES, make_recording
 
 CASE = {c.name: c for c in CASES}
 

@@ -1,4 +1,5 @@
-"""The per-effect proof (docs/mismatch.md) at reduced size: slow, run with ``pytest -m slow``.
+"""The per-effect proof (docs/mismatch.md) at reduced size (12 s recordings): marked slow,
+and run by CI with the rest of the suite; ``pytest -m "not slow"`` skips it while developing.
 
 Each case hides one effect (or two, or none, or one outside the library) in a
 recording made with ``sam``; the diagnosis runs blind with the nominal plant.
@@ -10,16 +11,10 @@ import pytest
 
 import sam
 from discrepancy import diagnose
-from scenarios.mismatch.generate import CASES, make_recording
-from scenarios.mismatch.proof import score
+from discrepancy.cases import CASES, make_recording
+from discrepancy.proof import score
 
 pytestmark = pytest.mark.slow
-
-
-@pytest.fixture(autouse=True)
-def _only_when_selected(request):
-    if "slow" not in (request.config.option.markexpr or ""):
-        pytest.skip("slow: run with -m slow")
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])

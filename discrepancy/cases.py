@@ -5,7 +5,7 @@ cylinder with a position controller plus a random dither (steps, reversals,
 high-flow moves, still periods, visits near the stroke ends), and measures it
 like the test bed: 20 kPa pressure noise, an angle encoder of 0.007 deg/pulse.
 
-    python -m scenarios.mismatch.generate OUT_DIR [--duration 20] [--case NAME]
+    python -m discrepancy.cases OUT_DIR [--duration 20] [--case NAME]
 """
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ def make_recording(case: Case, duration: float = 20.0, dt: float = 1e-3, seed: i
     sig = measure(states, params, dt, sensors, np.random.default_rng(seed + 1000))
     signals = {"u": u, "pA": sig["pA"], "pB": sig["pB"], "theta": sig["theta"]}
     meta = {"plant": base.name, "case": case.name, "concealed": case.note or "none",
-            "description": "mismatch-diagnosis proof case (scenarios/mismatch/generate.py)"}
+            "description": "mismatch-diagnosis proof case (discrepancy/cases.py)"}
     return sam.Recording(t=t, signals=signals, metadata=meta)
 
 
