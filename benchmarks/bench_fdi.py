@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from sam import load_plant  # noqa: E402
 from fdi.montecarlo import make_batch  # noqa: E402
 from fdi.synth import input_signal, lpm, profile, simulate_runs  # noqa: E402
-from fdi.ukf import SCALE, FilterConfig, initial_mean, run_filter  # noqa: E402
+from fdi.ukf import FilterConfig, initial_mean, noise_vectors, run_filter, state_scale  # noqa: E402
 
 
 def main() -> None:
@@ -33,8 +33,8 @@ def main() -> None:
 
     from test_fdi_ukf import _filterpy_reference
     cfg = FilterConfig()
-    z0 = initial_mean(runs.inp)
-    P0 = np.diag((np.asarray(cfg.p0) / SCALE) ** 2)[None].copy()
+    z0 = initial_mean(runs.inp, cfg)
+    P0 = np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None].copy()
     n_ref = 400  # the plain loop is slow: time 0.4 s and scale
     from dataclasses import replace
     short = replace(runs.inp, u=runs.inp.u[:, :n_ref], pA=runs.inp.pA[:, :n_ref], pB=runs.inp.pB[:, :n_ref],

@@ -31,6 +31,12 @@ class Case:
     faults: dict[str, float] = field(default_factory=dict)  # K_int, K_extA, K_extB
     sensors: dict[str, float] = field(default_factory=dict)  # lag_s, delay_s
     note: str = ""
+    #: optional law (state (7,), nominal params (len(P),), u_cmd [V]) -> (params, u_valve), applied every step
+    #: of the closed loop: other functional forms of an effect, through sam's parameters / unknown inputs
+    law: object = None
+    #: optional post-processing of the measured signals (dict -> dict), e.g. a second-order sensor filter
+    sensor_chain: object = None
+    seed_offset: int = 0
 
 
 CASES: tuple[Case, ...] = (
@@ -78,7 +84,7 @@ def reference_and_dither(duration: float, dt: float, rng: np.random.Generator, x
     return t, ref, dither
 
 
-def simulate_closed_loop(params: np.ndarray, duration: float, dt: float, seed: int, x0: float = 0.2):
+def simulate_closed_loop(params: np.ndarray, duration: float, dt: float, seed: int, x0: float = 0.2, law=None):
     """Position control u = Kp (ref - x_measured) + dither, clipped to +-10 V; returns t, u, states."""
     rng = np.random.default_rng(seed)
     x_max = params[P.x_max]
@@ -94,7 +100,11 @@ def simulate_closed_loop(params: np.ndarray, duration: float, dt: float, seed: i
         states[k] = state[0]
         x_meas = piston_position(quantise_angle(joint_angle(state[0, S.x], *L)), *L)
         u[k] = np.clip(kp * (ref[k] - x_meas) + dither[k], -10, 10)
-        state, _ = sam.step_batch(state, u[k:k + 1], p2, dt)
+        if law is None:
+            state, _ = sam.step_batch(state, u[k:k + 1], p2, dt)
+        else:
+            pk, uk = law(state[0], params, u[k])
+            state, _ = sam.step_batch(state, np.array([uk]), pk[None, :], dt)
     names = {"p_A": S.p_A, "p_B": S.p_B, "x_s": S.x_s, "x": S.x, "v": S.v}
     return t, u, {k: states[:, i] for k, i in names.items()}
 
@@ -104,9 +114,11 @@ def make_recording(case: Case, duration: float = 20.0, dt: float = 1e-3, seed: i
     base = plant or sam.load_plant()
     true_plant = base.replace(**case.plant) if case.plant else base
     params = true_plant.vector(faults=sam.Faults(**case.faults))
-    t, u, states = simulate_closed_loop(params, duration, dt, seed)
+    t, u, states = simulate_closed_loop(params, duration, dt, seed + case.seed_offset, law=case.law)
     sensors = Sensors(pressure_noise_Pa=20e3, encoder_quantisation=True, **case.sensors)
     sig = measure(states, params, dt, sensors, np.random.default_rng(seed + 1000))
+    if case.sensor_chain is not None:
+        sig = case.sensor_chain(sig, dt)
     signals = {"u": u, "pA": sig["pA"], "pB": sig["pB"], "theta": sig["theta"]}
     meta = {"plant": base.name, "case": case.name, "concealed": case.note or "none",
             "description": "mismatch-diagnosis proof case (discrepancy/cases.py)"}

@@ -25,14 +25,14 @@ def score(case, report) -> dict:
         first_ok = bool(named) and named[0] == case.expect[0] if len(case.expect) == 1 else set(case.expect) <= set(named)
         if len(case.expect) > 1 and not first_ok and named:
             first_ok = False
-    elif case.name == "outside_library":
+    elif case.name.startswith("outside"):
         first_ok = report.verdict == "unknown_effect"
     else:
         first_ok = report.verdict in ("adequate", "recalibrated")
     ft = report.fit_table
     best = "augmented" if "augmented" in ft else ("generic" if report.verdict == "unknown_effect" and "generic" in ft else "calibrated")
     return {
-        "case": case.name, "expected": " + ".join(case.expect) or {"outside_library": "unknown effect"}.get(case.name, "no new physics"),
+        "case": case.name, "expected": " + ".join(case.expect) or ("unknown effect" if case.name.startswith("outside") else "no new physics"),
         "verdict": report.verdict, "named": " + ".join(named) or "-", "ok": first_ok,
         "held_before": ft["nominal"]["held"]["mean"], "held_cal": ft["calibrated"]["held"]["mean"],
         "held_after": ft[best]["held"]["mean"], "time_s": report.timings["total_s"],
@@ -45,12 +45,22 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--case", action="append")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--set", choices=("dev", "heldout"), default="dev",
+                    help="dev: the development cases; heldout: the robustness set (never tuned on)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     args = ap.parse_args(argv)
+    if args.set == "heldout":
+        from .heldout import HELDOUT, materialise
+        cases = [materialise(c) for c in HELDOUT]
+        if args.seed == 1:
+            args.seed = 2
+    else:
+        cases = list(CASES)
     plant = sam.load_plant()
     rows = []
     print("| case | expected | verdict | named first | correct | held-out fit nominal -> calibrated -> final | time |")
     print("|---|---|---|---|---|---|---|")
-    for case in CASES:
+    for case in cases:
         if args.case and case.name not in args.case:
             continue
         rec = make_recording(case, args.duration, seed=args.seed)
@@ -63,6 +73,9 @@ def main(argv=None) -> int:
         print(f"| {r['case']} | {r['expected']} | {r['verdict']} | {r['named']} | {'yes' if r['ok'] else 'NO'} | "
               f"{r['held_before']:.1f} -> {r['held_cal']:.1f} -> {r['held_after']:.1f} | {r['time_s']:.1f} s |", flush=True)
     print(f"correct: {sum(r['ok'] for r in rows)}/{len(rows)}")
+    if args.json:
+        import json
+        args.json.write_text(json.dumps(rows, indent=1))
     return 0
 
 

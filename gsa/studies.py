@@ -155,7 +155,7 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
     import sam
     from sam.plant import load_plant
     from sam.profiles import INPUT_KINDS, evaluate
-    from sam.scenario import _load  # the scenario's load table: constant mass or a profile
+    from sam.scenario import load_mass_profile
 
     from gsa.sam_model import SamModel
 
@@ -178,7 +178,7 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
     plant = load_plant(source.parent / sim["plant"] if "plant" in sim else None)
     u = evaluate(INPUT_KINDS, sim.get("input", {"kind": "step", "amplitude_V": 2.5}), t, source,
                  "simulation.input")
-    load = _load({"load": sim.get("load", {})}, t, source)
+    load = load_mass_profile({"load": sim.get("load", {})}, t, source)
     base = plant.vector()
     time_varying = None
     if "m_L" in load:  # a constant load needs no per-step update

@@ -23,6 +23,7 @@ from .params import (
 )
 from .plant import default_plant_path, load_plant
 from .recording import Recording, RecordingError, read_recording, write_recording
+from .scenario import Scenario, load_scenario, run_scenario
 from .simulate import BatchResult, initial_state, simulate_batch
 
 __all__ = [
@@ -30,5 +31,5 @@ __all__ = [
     "rhs", "step_batch", "UserError", "P", "PARAM_NAMES", "Boom", "Cylinder", "Disturbances",
     "Effects", "Faults", "Fluid", "Friction", "Plant", "Supply", "Valve", "default_plant_path",
     "load_plant", "Recording", "RecordingError", "read_recording", "write_recording",
-    "BatchResult", "initial_state", "simulate_batch",
+    "BatchResult", "initial_state", "simulate_batch", "Scenario", "load_scenario", "run_scenario",
 ]

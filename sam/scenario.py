@@ -104,7 +104,7 @@ def scenario_from_table(table: dict[str, Any], source: Path) -> Scenario:
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise UserError(f"{where(source, 'seed')}: expected a non-negative integer, got {seed!r}")
     u = _input(table, t, source, base, seed)
-    time_varying = {**_faults(table, t, source, plant), **_load(table, t, source)}
+    time_varying = {**_faults(table, t, source, plant), **load_mass_profile(table, t, source)}
     return Scenario(
         name=str(table.get("name", source.stem)),
         description=str(table.get("description", "")),
@@ -161,7 +161,8 @@ def _faults(table, t, source, plant) -> dict[str, np.ndarray]:
     return out
 
 
-def _load(table, t, source) -> dict[str, np.ndarray]:
+def load_mass_profile(table, t, source) -> dict[str, np.ndarray]:
+    """The ``[load]`` table: ``m_L_kg = ...`` or a profile of m_L [kg]; {"m_L": (n_steps,)} or {}."""
     load = dict(_table(table, "load", source))
     if not load:
         return {}
@@ -209,6 +210,10 @@ def run_scenario(sc: Scenario) -> Recording:
     )
     keep = np.arange(0, len(sc.t) + 1, sc.output_every)
     states = {name: values[0] for name, values in result.states.items()}
+    bad = ~np.all([np.isfinite(v) for v in states.values()], axis=0)
+    if bad.any():  # never hand a user NaN silently
+        raise UserError(f"{where(sc.source, 'plant')}: the simulation left the finite range at "
+                        f"t = {result.t[np.argmax(bad)]:.4g} s; check the plant parameters and dt_s")
     rng = np.random.default_rng(sc.seed)
     signals = measure(states, params, sc.dt, sc.sensors, rng)
     signals["u"] = _at(sc.u, keep)

@@ -11,8 +11,8 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from sam import P, load_plant, step_batch
 from fdi.synth import input_signal, lpm, profile, simulate_runs
 from fdi.ukf import (
-    N_AUG, N_MODEL, PARAM_COLS, POS_THETA, SCALE, FilterConfig, initial_mean,
-    measurement_variances, run_filter, scaled_measurements,
+    N_MODEL, POS_THETA, SCALE, FilterConfig, initial_mean, measurement_variances, noise_vectors,
+    param_layout, run_filter, scaled_measurements, state_scale,
 )
 
 DT = 1e-3
@@ -31,19 +31,23 @@ def _runs(p, T=1501, faults=None, seed=0, B=1):
 
 def _filterpy_reference(inp, cfg, z0, P0, b=0):
     """A plain filterpy loop calling the model once per sigma point (scaled units)."""
-    n = N_AUG
+    scale = state_scale(cfg)
+    cols, rel = param_layout(cfg)
+    n = len(scale)
     params = inp.params[b].copy()
 
     def fx(zs, dt, u):
-        full = zs * SCALE
+        full = zs * scale
         prm = params.copy()
         vals = full[N_MODEL:].copy()
         if cfg.clip_leaks:
             vals[:3] = np.maximum(vals[:3], 0.0)
-        prm[PARAM_COLS] = vals
+        # calibration states (the load mass): relative error of the nominal value
+        vals = np.where(rel > 0, params[cols] * (1.0 + np.maximum(vals, -0.95)), vals)
+        prm[cols] = vals
         new, _ = step_batch(full[None, :N_MODEL].copy(), np.array([u]), prm[None, :], dt)
         out = zs.copy()
-        out[:N_MODEL] = new[0] / SCALE[:N_MODEL]
+        out[:N_MODEL] = new[0] / scale[:N_MODEL]
         return out
 
     L1, L2, L3 = params[P.L_1], params[P.L_2], params[P.L_3]
@@ -57,7 +61,7 @@ def _filterpy_reference(inp, cfg, z0, P0, b=0):
     ukf = UnscentedKalmanFilter(dim_x=n, dim_z=3, dt=inp.dt, hx=hx, fx=fx, points=pts)
     ukf.x = z0[b].copy()
     ukf.P = P0[b].copy()
-    ukf.Q = np.diag((np.asarray(cfg.q) * math.sqrt(inp.dt) / SCALE) ** 2)
+    ukf.Q = np.diag((noise_vectors(cfg)[0] * math.sqrt(inp.dt) / scale) ** 2)
     ukf.R = np.diag(measurement_variances(cfg, inp.pos_kind))
     y = scaled_measurements(inp)[b]
     T = inp.u.shape[1]
@@ -78,12 +82,12 @@ def test_batched_ukf_equals_filterpy(plant_vector):
     runs = _runs(plant_vector, T=401, faults={"K_extA": profile("step", lpm(1.0), t, t0=0.1)})
     assert runs.inp.pos_kind == POS_THETA
     cfg = FilterConfig(project_mean=False, nis_factor=0.0)  # plain UKF: no projection, no resets
-    z0 = initial_mean(runs.inp)
-    P0 = np.diag((np.asarray(cfg.p0) / SCALE) ** 2)[None].copy()
+    z0 = initial_mean(runs.inp, cfg)
+    P0 = np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None].copy()
     out = run_filter(runs.inp, cfg, z0=z0, P0=P0)
     ref_x, ref_sd = _filterpy_reference(runs.inp, cfg, z0, P0)
-    ours_x = out.mean[0] / SCALE
-    ours_sd = out.std[0] / SCALE
+    ours_x = out.mean[0] / state_scale(cfg)
+    ours_sd = out.std[0] / state_scale(cfg)
     assert np.max(np.abs(ours_x - ref_x)) < 1e-9
     assert np.max(np.abs(ours_sd - ref_sd)) < 1e-9
     assert out.n_jitter[0] == 0 and out.n_cov_reset[0] == 0
@@ -99,7 +103,7 @@ def test_batch_of_filters_equals_one_at_a_time(plant_vector):
         one = replace(runs.inp, u=runs.inp.u[b:b + 1], pA=runs.inp.pA[b:b + 1], pB=runs.inp.pB[b:b + 1],
                       pos=runs.inp.pos[b:b + 1], params=runs.inp.params[b:b + 1])
         single = run_filter(one)
-        assert np.max(np.abs(single.mean[0] - all_out.mean[b]) / SCALE) < 1e-9
+        assert np.max(np.abs(single.mean[0] - all_out.mean[b]) / state_scale(all_out.config)) < 1e-9
 
 
 def test_leaks_stay_non_negative_and_nan_gap_predicted_through(plant_vector):
