@@ -12,7 +12,7 @@ import math
 import numba
 import numpy as np
 
-from .constants import KAPPA_AIR, P_ATM, P_CAVITATION
+from .constants import KAPPA_AIR, LEAK_REFERENCE_DP, LPM, P_ATM, P_CAVITATION
 
 jit = numba.njit(cache=True)
 
@@ -153,3 +153,16 @@ def _supply_flow_loop(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_s
     for k in range(x_s.shape[0]):
         out[k] = supply_flow(x_s[k], p_A[k], p_B[k], offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat)
     return out
+
+
+def leak_coefficient(lpm):
+    """K [m^3/(s Pa^0.5)] of a turbulent leak (Eqs. (41)-(43)) passing ``lpm`` L/min at 10 MPa.
+
+    Table 5's upper bound: 1 L/min at 10 MPa is K = 5.27e-9.
+    """
+    return lpm * LPM / math.sqrt(LEAK_REFERENCE_DP)
+
+
+def leak_lpm(K):
+    """The flow [L/min] of a turbulent leak coefficient K [m^3/(s Pa^0.5)] at 10 MPa."""
+    return K * math.sqrt(LEAK_REFERENCE_DP) / LPM

@@ -49,17 +49,19 @@ def prbs_input(t, amplitude_V, hold_s, seed=0, offset_V=0.0):
     return offset_V + amplitude_V * levels[slot]
 
 
-def cycle_input(t, amplitude_V, period_s, ramp_s=0.0, offset_V=0.0):
-    """Extend/retract cycles: +amplitude for half a period, -amplitude for the other half,
-    with linear ramps of ``ramp_s`` between them (trapezoid)."""
-    phase = np.mod(t, period_s) / period_s
-    square = np.where(phase < 0.5, 1.0, -1.0)
-    if ramp_s <= 0:
-        return offset_V + amplitude_V * square
+def cycle_input(t, amplitude_V, period_s, ramp_s=0.0, offset_V=0.0, dwell_fraction=0.0):
+    """Extend/retract cycles: +amplitude for half a period, then -amplitude.
+
+    Each half starts with a linear ramp of ``ramp_s`` (a trapezoid) and ends with
+    ``dwell_fraction`` of the half at rest (u = offset), e.g. 0.5 gives
+    extend, hold, retract, hold.
+    """
     half = period_s / 2
     tau = np.mod(t, half)
-    rising = np.clip(tau / ramp_s, 0.0, 1.0)
-    return offset_V + amplitude_V * square * rising
+    direction = np.where(np.mod(t, period_s) < half, 1.0, -1.0)
+    moving = tau < (1.0 - dwell_fraction) * half
+    rising = np.clip(tau / ramp_s, 0.0, 1.0) if ramp_s > 0 else 1.0
+    return offset_V + amplitude_V * direction * rising * moving
 
 
 def pwl_csv_input(t, file, base_dir="."):
@@ -151,6 +153,8 @@ def evaluate(kinds: dict[str, Callable], spec: dict[str, Any], t: np.ndarray, so
 
 
 def _check_times(spec: dict, source, field: str) -> None:
+    if not 0 <= spec.get("dwell_fraction", 0) < 1:
+        raise UserError(f"{where(source, f'{field}.dwell_fraction')}: must be in [0, 1)")
     for key in ("hold_s", "period_s", "on_s", "frequency_Hz"):
         if key in spec and not spec[key] > 0:
             raise UserError(f"{where(source, f'{field}.{key}')}: must be > 0, got {spec[key]}")

@@ -19,7 +19,7 @@ import io
 import time
 from pathlib import Path
 
-from sam.constants import LEAK_REFERENCE_DP, LPM
+from sam.hydraulics import leak_coefficient
 from sam.errors import UserError
 from sam.plant import default_plant_path
 from sam.plotting import plot_recordings
@@ -30,11 +30,6 @@ DEMO_LEAK_LPM = 0.5  #: L/min at 10 MPa, the demo's external leak
 DEMO_GSA_N = 512  #: base sample size of the demo's sensitivity studies (the paper's is 10000)
 DEMO_GSA_BOOTSTRAP = 200
 DEMO_MISMATCH_S = 12.0  #: s, length of the demo's mismatch recording
-
-
-def leak_coefficient(lpm: float) -> float:
-    """K [m^3/(s Pa^0.5)] of a turbulent leak passing ``lpm`` L/min at 10 MPa (Eqs. (41)-(43))."""
-    return lpm * LPM / LEAK_REFERENCE_DP**0.5
 
 
 def demo_scenario(faults: dict | None = None, duration_s: float = 4.0) -> dict:

@@ -107,6 +107,7 @@ def test_fault_and_load_profiles_reach_the_model(tmp_path):
     ("chirp", "amplitude_V = 3.0\nf0_Hz = 0.1\nf1_Hz = 2.0\n"),
     ("prbs", "amplitude_V = 3.0\nhold_s = 0.2\n"),
     ("cycle", "amplitude_V = 4.0\nperiod_s = 1.0\nramp_s = 0.1\n"),
+    ("cycle", "amplitude_V = 4.0\nperiod_s = 1.0\ndwell_fraction = 0.5\n"),
     ("ramp", "start_V = -3.0\nend_V = 3.0\nt0_s = 0.0\nt1_s = 2.0\n"),
 ])
 def test_inputs_drive_both_directions(tmp_path, kind, keys):
