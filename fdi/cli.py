@@ -35,6 +35,9 @@ def add_commands(subparsers) -> None:
     g.add_argument("--n-leak", type=int, default=16, help="base sample size of the leakage GSA (power of 2)")
     g.add_argument("--n-nuisance", type=int, default=32, help="base sample size of the nuisance GSA (power of 2)")
     g.add_argument("--workers", type=int, default=1, help="local worker processes")
+    g.add_argument("--filter", default="shipped",
+                   help="filter configuration to derive the thresholds for (fdi.ukf.PRESETS: shipped, calibrated); "
+                        "replay and tune then run the filter the thresholds file names")
     g.add_argument("--out", required=True, help="output folder: thresholds.toml, thresholds.md, thresholds_gsa.json")
     g.set_defaults(func=_thresholds)
 
@@ -59,7 +62,10 @@ def _load_thresholds(path):
     if not path:
         return Thresholds.shipped()
     try:
-        return Thresholds.load(path)
+        th = Thresholds.load(path)
+        from .ukf import preset
+        preset(th.filter)
+        return th
     except (OSError, ValueError, TypeError) as exc:
         raise UserError(f"{path}: not a thresholds file from `samfdi fdi thresholds`: {exc}") from None
 
@@ -70,8 +76,11 @@ def _thresholds(args) -> int:
     for name, n in (("--n-leak", args.n_leak), ("--n-nuisance", args.n_nuisance)):
         if n < 4:
             raise UserError(f"{name}: need at least 4, got {n}")
+    from .ukf import PRESETS
+    if args.filter not in PRESETS:
+        raise UserError(f"--filter: unknown filter {args.filter!r}; known: {', '.join(PRESETS)}")
     th, report = compute_thresholds(_plant(args), N_leak=args.n_leak, N_nuisance=args.n_nuisance,
-                                    workers=args.workers)
+                                    workers=args.workers, filter=args.filter)
     print(describe(th))
     for p in write_thresholds(th, report, Path(args.out)):
         print(f"wrote {p}")

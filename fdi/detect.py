@@ -78,6 +78,9 @@ class Thresholds:
     nuisance_sd: dict = field(default_factory=lambda: {
         "K_int": 1.00e-9, "K_extA": 5.14e-10, "K_extB": 6.07e-10, "offset": 5.19e-3})
     source: str = "placeholder defaults (no thresholds file)"
+    #: the filter configuration (a name in fdi.ukf.PRESETS) these thresholds were derived
+    #: for; replay and tune run that filter
+    filter: str = "shipped"
 
     @classmethod
     def load(cls, path: str | Path) -> "Thresholds":

@@ -18,7 +18,7 @@ from sam.geometry import piston_position
 from .detect import HYPOTHESES, Diagnosis, Thresholds, diagnose, residuals, statistics
 from .ukf import (
     FAULT_STATES, POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
-    run_filter,
+    preset, run_filter,
 )
 
 SENSOR_RANGE_PA = (0.0, 25e6)  #: pressure sensors of the SAM
@@ -116,7 +116,7 @@ def reference_baseline(ref: Recording, plant: Plant, cfg: FilterConfig = FilterC
     return np.array([[out.mean[0, half:, j].mean() for j in FAULT_STATES]])
 
 
-def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig = FilterConfig(),
+def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
            thresholds: Thresholds | None = None, drop_out_of_range: bool = False,
            baseline: Recording | np.ndarray | None = None):
     """Filter one recording and diagnose it. Returns (output, residuals, stats, diagnosis, info).
@@ -124,6 +124,7 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig = FilterConfig(),
     ``baseline``: a healthy reference recording (or its (1, 4) baseline values); default:
     the recording's own estimates over the baseline window of the thresholds."""
     thresholds = Thresholds.shipped() if thresholds is None else thresholds
+    cfg = preset(thresholds.filter) if cfg is None else cfg  # the filter the thresholds were made for
     rec = rec.measured()  # never the true_* columns
     inp, info = filter_input(rec, plant, drop_out_of_range=drop_out_of_range)
     check_observable(inp, plant, str(rec.source or "recording"))

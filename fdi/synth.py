@@ -7,51 +7,47 @@ benchmark. Only measured channels go to the filter; the truth is kept apart.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from sam import P, simulate_batch
+from sam import P, profiles, simulate_batch
+from sam.hydraulics import leak_coefficient
+from sam.measurement import quantise_angle
 from sam.geometry import joint_angle
 
-from .ukf import K_PER_LPM, POS_THETA, POS_X, THETA_PULSE, FilterInput
+from .ukf import POS_THETA, POS_X, FilterInput
 
 FAULT_NAMES = ("K_int", "K_extA", "K_extB", "offset")
 
 
 def profile(kind: str, value: float, t: np.ndarray, t0: float = 0.0, t1: float | None = None,
             period: float = 1.0, duty: float = 0.5) -> np.ndarray:
-    """A fault profile over time t: constant, step (at t0), ramp (t0 -> t1), intermittent."""
+    """A fault profile over time t (sam.profiles): constant, step (at t0), ramp (t0 -> t1),
+    intermittent (on for ``duty`` of each ``period`` from t0)."""
     if kind == "constant":
-        return np.full_like(t, value)
+        return profiles.constant_profile(t, value)
     if kind == "step":
-        return np.where(t >= t0, value, 0.0)
+        return profiles.step_profile(t, value, t0)
     if kind == "ramp":
-        t1 = t[-1] if t1 is None else t1
-        return value * np.clip((t - t0) / max(t1 - t0, 1e-12), 0.0, 1.0)
+        return profiles.ramp_profile(t, value, t0, t[-1] if t1 is None else t1)
     if kind == "intermittent":
-        on = (t >= t0) & (((t - t0) % period) < duty * period)
-        return np.where(on, value, 0.0)
+        return profiles.intermittent_profile(t, value, t0, duty * period, (1 - duty) * period)
     raise ValueError(f"unknown profile kind {kind!r}")
 
 
 def input_signal(kind: str, t: np.ndarray, amplitude: float = 3.0, frequency: float = 0.5,
                  offset: float = 0.0, seed: int = 0, period: float = 4.0) -> np.ndarray:
-    """Valve input [V]: sine, step, prbs or an extend/retract cycle."""
+    """Valve input [V] (sam.profiles): sine, step (at 0.1 s), prbs (0.2 s hold) or an
+    extend, hold, retract, hold cycle."""
     if kind == "sine":
-        return offset + amplitude * np.sin(2 * np.pi * frequency * t)
+        return profiles.sine_input(t, amplitude, frequency, offset)
     if kind == "step":
-        return np.where(t >= 0.1, amplitude, 0.0) + offset
-    if kind == "cycle":  # extend, hold, retract, hold
-        ph = (t % period) / period
-        return offset + amplitude * np.select([ph < 0.25, ph < 0.5, ph < 0.75], [1.0, 0.0, -1.0], 0.0)
+        return profiles.step_input(t, amplitude + offset, t0_s=0.1, initial_V=offset)
+    if kind == "cycle":
+        return profiles.cycle_input(t, amplitude, period, offset_V=offset, dwell_fraction=0.5)
     if kind == "prbs":
-        rng = np.random.default_rng(seed)
-        hold = 0.2
-        n = int(math.ceil(t[-1] / hold)) + 1
-        levels = rng.choice([-1.0, 1.0], size=n)
-        return offset + amplitude * levels[(t / hold).astype(int)]
+        return profiles.prbs_input(t, amplitude, hold_s=0.2, seed=seed, offset_V=offset)
     raise ValueError(f"unknown input kind {kind!r}")
 
 
@@ -112,7 +108,7 @@ def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict 
     if position == "theta":
         th = joint_angle(x, params[:, [P.L_1]], params[:, [P.L_2]], params[:, [P.L_3]])
         if quantise:
-            th = np.floor(th / THETA_PULSE) * THETA_PULSE + 0.5 * THETA_PULSE
+            th = quantise_angle(th)
         pos, kind = th, POS_THETA
     else:
         pos, kind = x.copy(), POS_X
@@ -126,6 +122,4 @@ def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict 
     return Runs(inp, truth, res.cavitated)
 
 
-def lpm(value_lpm: float) -> float:
-    """Leak coefficient for a leak of value_lpm L/min at 10 MPa."""
-    return value_lpm * K_PER_LPM
+lpm = leak_coefficient  #: K of a leak of so many L/min at 10 MPa

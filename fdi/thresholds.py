@@ -39,7 +39,7 @@ from sam import P, Plant
 
 from .detect import HYPOTHESES, PARAMS, REGIMES, Thresholds, baseline_values, regimes
 from .synth import input_signal, simulate_runs
-from .ukf import run_filter
+from .ukf import preset, run_filter
 
 DURATION, DT, ONSET = 4.0, 1e-3, 1.5
 VOTE_ST = 0.5  #: a residual votes for fault f in a regime where ST_f >= this
@@ -61,7 +61,7 @@ def _experiment(x: float, t: np.ndarray) -> np.ndarray:
                         seed=int(r.integers(1 << 31)), period=r.uniform(2.0, 4.0))
 
 
-def _run_rows(params: np.ndarray, exp: np.ndarray, noise: np.ndarray, faults=None):
+def _run_rows(params: np.ndarray, exp: np.ndarray, noise: np.ndarray, faults=None, filter_name="shipped"):
     """Simulate and filter one run per row; deterministic given the factor values."""
     T = int(round(DURATION / DT)) + 1
     t = np.arange(T) * DT
@@ -72,7 +72,7 @@ def _run_rows(params: np.ndarray, exp: np.ndarray, noise: np.ndarray, faults=Non
         r = np.random.default_rng(int(x * 2**31) + 17)
         runs.inp.pA[i] += 20e3 * r.standard_normal(T)
         runs.inp.pB[i] += 20e3 * r.standard_normal(T)
-    return run_filter(runs.inp)
+    return run_filter(runs.inp, preset(filter_name))
 
 
 _NOMINAL = None
@@ -116,7 +116,7 @@ def _leak_model(X: np.ndarray, th: Thresholds) -> np.ndarray:
     params = np.tile(_NOMINAL, (n, 1))
     faults = {name: np.where(t[None, :] >= ONSET, X[:, [i]], 0.0)
               for i, name in enumerate(("K_int", "K_extA", "K_extB", "offset"))}
-    out = _run_rows(params, X[:, 4], X[:, 5], faults)
+    out = _run_rows(params, X[:, 4], X[:, 5], faults, th.filter)
     dev, _, reg = _dev(out, th)
     return _regime_stat(dev, reg, ONSET + 0.2, "mean")
 
@@ -135,7 +135,7 @@ def _nuisance_params(X: np.ndarray) -> np.ndarray:
 
 
 def _nuisance_model(X: np.ndarray, th: Thresholds):
-    out = _run_rows(_nuisance_params(X), X[:, -2], X[:, -1])
+    out = _run_rows(_nuisance_params(X), X[:, -2], X[:, -1], filter_name=th.filter)
     dev, sd, reg = _dev(out, th)
     return _regime_stat(dev, reg, th.warmup_s + th.baseline_s, "rms"), (dev, sd, reg)
 
@@ -188,14 +188,16 @@ def _gumbel_quantile(x: np.ndarray, p: float) -> float:
 
 
 def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = 32, seed: int = 2011,
-                       workers: int = 1, fa_level: float = FA_LEVEL, drift: float = 1.0) -> tuple[Thresholds, dict]:
+                       workers: int = 1, fa_level: float = FA_LEVEL, drift: float = 1.0,
+                       filter: str = "shipped") -> tuple[Thresholds, dict]:
     """Run both studies and derive the thresholds. Returns (thresholds, report)."""
     import warnings
 
     from gsa import analyze, saltelli_design
 
     _init(plant.vector())
-    th0 = replace(Thresholds(), drift=drift)
+    preset(filter)  # a known filter name
+    th0 = replace(Thresholds(), drift=drift, filter=filter)
     lp, npb = _problems()
     names = output_names()
     with warnings.catch_warnings():
@@ -259,7 +261,8 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = 32, see
     th = replace(th1, h=h, false_alarm_level=fa_level, run_length_s=DURATION,
                  nuisance_sd={p: float(np.sqrt(np.mean(dev[:, i, int(0.5 / DT):] ** 2))) for i, p in enumerate(PARAMS)},
                  source=(f"samfdi fdi thresholds: leakage GSA N={N_leak} ({d_leak.n_runs} runs), nuisance GSA "
-                         f"N={N_nuisance} ({d_nui.n_runs} runs), seed {seed}"))
+                         f"N={N_nuisance} ({d_nui.n_runs} runs), seed {seed}"
+                         + ("" if filter == "shipped" else f", filter {filter}")))
     ranking = {nm: r_nui.ranked_factors(nm)[:3] for nm in names}
     st_nui = {nm: {f: float(np.nan_to_num(r_nui.ST[i, j])) for i, f in enumerate(r_nui.factor_names)}
               for j, nm in enumerate(names)}
@@ -339,7 +342,7 @@ def describe(th: Thresholds) -> str:
     for p, s in th.sigma.items():
         conv = (lambda x: f"{100 * x:.2f} %") if p == "offset" else (lambda x: f"{float(leak_lpm(x)):.3f} L/min")
         lines.append(f"| {p} | " + " | ".join(conv(x) + ("*" if v else "") for x, v in zip(s, th.votes[p])) + " |")
-    lines += ["", f"confusable pairs: {th.confusable}", f"source: {th.source}"]
+    lines += ["", f"confusable pairs: {th.confusable}", f"source: {th.source}", f"filter: {th.filter}"]
     return "\n".join(lines)
 
 

@@ -21,7 +21,7 @@ from sam import Plant, UserError
 
 from .detect import HYPOTHESES, Thresholds, statistics
 from .montecarlo import make_batch
-from .ukf import run_filter
+from .ukf import preset, run_filter
 
 FAULT_SIZES = {"K_int": (0.1, 0.25, 0.5, 1.0), "K_extA": (0.1, 0.25, 0.5, 1.0),
                "K_extB": (0.1, 0.25, 0.5, 1.0), "offset": (0.01, -0.01, 0.02, -0.02, 0.05)}
@@ -34,7 +34,7 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed):
     """Filter one chunk; per run and hypothesis: first alarm index (-1: none) and the
     maxima of g/h before the onset, within 1 s after it, and over the run."""
     runs = make_batch(plant, n, seed, fault=fault, size=size, duration=DURATION, onset=ONSET)
-    out = run_filter(runs.inp)
+    out = run_filter(runs.inp, preset(th.filter))
     st = statistics(out, th)
     k0, k1 = int(ONSET / DT), int((ONSET + 1.0) / DT) + 1
     first = np.full((n, len(HYP)), -1, dtype=np.int64)

@@ -60,8 +60,10 @@ def time_delay(y: np.ndarray, dt: float, delay_s: float) -> np.ndarray:
 
 
 def quantise_angle(theta: np.ndarray) -> np.ndarray:
-    """The encoder's reading: theta [rad] rounded to whole pulses of 0.007 deg."""
-    return np.round(theta / ENCODER_RESOLUTION_RAD) * ENCODER_RESOLUTION_RAD
+    """The encoder's reading of theta [rad]: the middle of the 0.007 deg pulse interval
+    it is in (an incremental encoder knows only which interval; error within +-q/2)."""
+    q = ENCODER_RESOLUTION_RAD
+    return (np.floor(theta / q) + 0.5) * q
 
 
 def measure(states: dict[str, np.ndarray], params: np.ndarray, dt: float, sensors: Sensors,

@@ -77,9 +77,11 @@ def test_paper_step_scenario_runs_to_the_shared_format(tmp_path):
     rec = run_scenario(load_scenario(PAPER_STEP))
     assert rec.t[-1] == pytest.approx(4.0) and rec.dt == pytest.approx(1e-3)
     assert np.all(rec.signals["u"] == 2.5)
-    # quantised encoder: theta is a whole number of 0.007 deg pulses
-    pulses = rec.signals["theta"] / np.deg2rad(0.007)
+    # quantised encoder: theta is the middle of a 0.007 deg pulse interval, within half a pulse
+    pulses = rec.signals["theta"] / np.deg2rad(0.007) - 0.5
     np.testing.assert_allclose(pulses, np.round(pulses), atol=1e-6)
+    true_theta = sam.geometry.joint_angle(rec.truth["true_x"], 0.30, 1.04, 0.84)
+    assert np.max(np.abs(rec.signals["theta"] - true_theta)) <= np.deg2rad(0.007) / 2 + 1e-12
     # pressure noise is the stated 20 kPa
     noise = rec.signals["pA"] - rec.truth["true_pA"]
     assert np.std(noise) == pytest.approx(20e3, rel=0.05)
