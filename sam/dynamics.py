@@ -22,7 +22,7 @@ import numpy as np
 from .constants import P_CAVITATION
 from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, stribeck
 from .geometry import (
-    cos_joint_angle, load_torque_cs, piston_position, reduced_mass, torque_arm_cs, total_inertia,
+    cos_joint_angle, load_torque_cs, piston_position, torque_arm_cs, total_inertia,
 )
 from .hydraulics import fault_leakages, flow_coefficient, pressure_rate, valve_flows
 from .params import P
@@ -63,7 +63,7 @@ class D(IntEnum):
     cos_alpha = 6
     sin_alpha = 7
     x_end = 8  #: m, extension end stop
-    J_tot = 9  #: kg m^2, Eq. (16)
+    inv_J_tot = 9  #: 1/(kg m^2), inverse of J_tot, Eq. (16)
     sigma_1_r = 10  #: N s, sigma_1 times the torque arm r (sigma_1 = sigma_1_r / r)
 
 
@@ -101,9 +101,10 @@ def derive(p, d):
     d[D.sin_alpha] = np.sin(p[P.alpha])
     x_joint = piston_position(p[P.theta_max], p[P.L_1], p[P.L_2], p[P.L_3])
     d[D.x_end] = min(p[P.x_max], x_joint)
-    d[D.J_tot] = total_inertia(p[P.m_B], p[P.L_B], p[P.m_L], p[P.m_R], p[P.L])
+    J_tot = total_inertia(p[P.m_B], p[P.L_B], p[P.m_L], p[P.m_R], p[P.L])
+    d[D.inv_J_tot] = 1.0 / J_tot
     # sigma_1 = 2 sqrt(sigma_0 J_tot / r^2) = bristle_damping(sigma_0, J_tot) / r
-    d[D.sigma_1_r] = bristle_damping(p[P.sigma_0], d[D.J_tot])
+    d[D.sigma_1_r] = bristle_damping(p[P.sigma_0], J_tot)
 
 
 @jit_inline
@@ -144,11 +145,12 @@ def rhs(s, u, p, d, ds):
     cos_theta = cos_joint_angle(x, p[P.L_1], p[P.L_2], p[P.L_3])
     sin_theta = np.sqrt(1.0 - cos_theta * cos_theta)
     r = torque_arm_cs(x, sin_theta, p[P.L_1], p[P.L_2], p[P.L_3])
-    m_red = reduced_mass(d[D.J_tot], r)
+    inv_r = 1.0 / r  # divisions are the step's dearest operations: one here serves three
+    inv_m_red = r * r * d[D.inv_J_tot]  # 1 / m_reduced, Eq. (20)
     tau = load_torque_cs(
         cos_theta, sin_theta, d[D.cos_alpha], d[D.sin_alpha], p[P.m_B], p[P.r_B], p[P.m_L], p[P.m_R], p[P.L]
     )
-    F_ext = tau / r + p[P.F_d]
+    F_ext = tau * inv_r + p[P.F_d]
 
     # LuGre friction, Eq. (17)
     g = stribeck(
@@ -158,10 +160,10 @@ def rhs(s, u, p, d, ds):
         p[P.v_s],
     )
     dz = bristle_rate(v, z, g, p[P.sigma_0])
-    F_mu = lugre_force(v, z, dz, p[P.sigma_0], d[D.sigma_1_r] / r, p[P.b])
+    F_mu = lugre_force(v, z, dz, p[P.sigma_0], d[D.sigma_1_r] * inv_r, p[P.b])
 
     ds[4] = v
-    ds[5] = (p_A * A_A - p_B * A_B - F_mu - F_ext) / m_red
+    ds[5] = (p_A * A_A - p_B * A_B - F_mu - F_ext) * inv_m_red
     ds[6] = dz
 
 

@@ -135,7 +135,7 @@ def pressure_rate(Q_net, V, p, B_eff, air_fraction, C_hose):
     capacitance is ``V / B`` plus an optional hose compliance C_hose [m^3/Pa].
     """
     B = effective_bulk_modulus(p, B_eff, air_fraction)
-    return Q_net / (V / B + C_hose)
+    return Q_net * B / (V + C_hose * B)  # = Q_net / (V/B + C_hose), with one division
 
 
 def supply_flow_array(x_s, p_A, p_B, p):

@@ -176,7 +176,7 @@ def test_hydraulic_natural_frequency(B_eff, expected_hz):
     d = derived(p)
     x = s[S.x]
     V_A, V_B = p[P.V_0A] + d[D.A_A] * x, p[P.V_0B] + d[D.A_B] * (p[P.x_max] - x)
-    m = d[D.J_tot] / torque_arm(x, p[P.L_1], p[P.L_2], p[P.L_3]) ** 2
+    m = 1.0 / (d[D.inv_J_tot] * torque_arm(x, p[P.L_1], p[P.L_2], p[P.L_3]) ** 2)
     f_classic = np.sqrt(B_eff / m * (d[D.A_A] ** 2 / V_A + d[D.A_B] ** 2 / V_B)) / (2 * np.pi)
     f_model = linearised_frequency_hz(p, s, 2.5)
     assert f_model == pytest.approx(f_classic, rel=0.10)
