@@ -36,7 +36,8 @@ def add_commands(subparsers) -> None:
     g.add_argument("--n-nuisance", type=int, default=32, help="base sample size of the nuisance GSA (power of 2)")
     g.add_argument("--workers", type=int, default=1, help="local worker processes")
     g.add_argument("--filter", default="shipped",
-                   help="filter configuration to derive the thresholds for (fdi.ukf.PRESETS: shipped, calibrated); "
+                   help="filter configuration to derive the thresholds for (a name in fdi.ukf.PRESETS: shipped, calibrated, "
+                        "calibrated_qn_frozen, calibrated_softfreeze, calibrated_kint3, calibrated_softfreeze_kint3); "
                         "replay and tune then run the filter the thresholds file names")
     g.add_argument("--out", required=True, help="output folder: thresholds.toml, thresholds.md, thresholds_gsa.json")
     g.set_defaults(func=_thresholds)

@@ -90,7 +90,10 @@ class FilterConfig:
     # clip_leaks=True, constraint="project_joint", theta_noise_floor=1e-4 (q x1 or x2): passes
     # the cross-talk test and halves the nominal-plant wander, but held-out no better;
     # (4) PRESETS["calibrated"] (3) + B_eff and Q_N states: held-out best (0.9 % false
-    # alarms) but fails 2 fdi tests (sizing, offset- next to a small K_int).
+    # alarms) but fails 2 fdi tests (sizing, offset- next to a small K_int). Session 5: slower
+    # calibration walks, smaller Q_N priors, a hard or soft (``freeze_sd_factor``) freeze of the
+    # Q_N states and a faster K_int walk (PRESETS "calibrated_*"): each fixes at most one of the
+    # two tests (docs/fdi.md, "Session 5"); the default is unchanged.
     """Tuning of the filter. Process noise is given as a spectral density
     (std per sqrt(second)), so that it does not depend on the sampling step."""
 
@@ -136,6 +139,9 @@ class FilterConfig:
     #: Consistent with the change test, which takes [warmup, warmup + baseline_s] as healthy.
     freeze_calib_s: float | None = None
     calib_free: tuple = ("m_L",)  #: calibration states that stay free (the load can change)
+    #: 0: freezing clears the state's covariance; > 0: "soft freeze", its std (and its
+    #: covariances) are multiplied by this factor and its process noise set to 0
+    freeze_sd_factor: float = 0.0
     #: clip leak sigma points at 0 inside the model (the K >= 0 prior; without it a
     #: 1 L/min K_extA leaves 0.2 L/min on K_extB). Combined with projecting the filter's
     #: own mean (``project_internal``, still the default) it drifts in hold phases
@@ -329,7 +335,7 @@ def _truncate_leaks(z, Pm, shrink_cov, min_mass):
 @numba.njit(cache=True)
 def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind, Wm, Wc, lam,
          clip_leaks, project_mean, project_internal, constraint_mode, truncate_cov, truncate_min_mass,
-         freeze_k, freeze_mask, symmetrise, nis_alpha, nis_limit, jitter, dt,
+         freeze_k, freeze_mask, freeze_sd, symmetrise, nis_alpha, nis_limit, jitter, dt,
          out_z, out_sd, out_nu, out_nis, counts):
     """Run B filters over T samples.
 
@@ -372,10 +378,17 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
             for j in range(n):
                 if freeze_mask[j]:
                     for b in range(B):
-                        for l in range(n):
-                            Pm[b, j, l] = 0.0
-                            Pm[b, l, j] = 0.0
-                        Pm[b, j, j] = 1e-12
+                        if freeze_sd > 0.0:  # soft freeze: shrink the state's std by freeze_sd
+                            for l in range(n):
+                                if l != j:
+                                    Pm[b, j, l] *= freeze_sd
+                                    Pm[b, l, j] *= freeze_sd
+                            Pm[b, j, j] *= freeze_sd * freeze_sd
+                        else:
+                            for l in range(n):
+                                Pm[b, j, l] = 0.0
+                                Pm[b, l, j] = 0.0
+                            Pm[b, j, j] = 1e-12
                     for l in range(n):
                         Qd[j, l] = 0.0
                         Qd[l, j] = 0.0
@@ -701,7 +714,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
          np.ascontiguousarray(inp.params, dtype=float), scale, cols, rel, int(inp.pos_kind),
          Wm, Wc, float(lam), bool(cfg.clip_leaks), bool(cfg.project_mean), bool(cfg.project_internal),
          _CONSTRAINTS[cfg.constraint], bool(cfg.truncate_cov), float(cfg.truncate_min_mass),
-         freeze_k, freeze_mask, bool(cfg.symmetrise),
+         freeze_k, freeze_mask, float(cfg.freeze_sd_factor), bool(cfg.symmetrise),
          float(nis_alpha), float(nis_limit), float(cfg.jitter), float(inp.dt),
          out_z, out_sd, out_nu, out_nis, counts)
     return FilterOutput(
@@ -724,6 +737,21 @@ PRESETS = {
         calibrate=("m_L", "B_eff", "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT"),
         calib_noise=(("m_L", 0.25, 0.05), ("B_eff", 0.1, 0.005))),
 }
+#: Session 5 variants of "calibrated" (options; measured in docs/fdi.md, "Session 5"; none
+#: passes every fdi test, so none is the default and none ships a thresholds file; derive
+#: one with ``samfdi fdi thresholds --filter NAME``):
+#: "calibrated_qn_frozen": the four notch-flow states learnt over [0, 1.5] s, then frozen
+#: (the load mass and B_eff stay free); "calibrated_softfreeze": the same, but their std is
+#: only halved at 1.5 s (``freeze_sd_factor=0.5``); "calibrated_kint3": the K_int random walk
+#: x3 (0.3 L/min/sqrt(s)), so that K_int, not the offset, takes an internal-leak step;
+#: "calibrated_softfreeze_kint3": both.
+PRESETS["calibrated_qn_frozen"] = PRESETS["calibrated"].with_(freeze_calib_s=1.5, calib_free=("m_L", "B_eff"))
+PRESETS["calibrated_kint3"] = PRESETS["calibrated"].with_(
+    q=PRESETS["calibrated"].q[:7] + (0.3 * K_PER_LPM,) + PRESETS["calibrated"].q[8:])
+PRESETS["calibrated_softfreeze"] = PRESETS["calibrated"].with_(
+    freeze_calib_s=1.5, calib_free=("m_L", "B_eff"), freeze_sd_factor=0.5)
+PRESETS["calibrated_softfreeze_kint3"] = PRESETS["calibrated_kint3"].with_(
+    freeze_calib_s=1.5, calib_free=("m_L", "B_eff"), freeze_sd_factor=0.5)
 
 
 def preset(name: str) -> FilterConfig:

@@ -136,3 +136,65 @@ def test_known_leak_size_estimated(plant_vector):
     assert est == pytest.approx(1.0, abs=0.15)
     assert leak_lpm(out.mean[0, 2500:, 7]).mean() < 0.15
     assert leak_lpm(out.mean[0, 2500:, 9]).mean() < 0.15
+
+
+def test_truncated_gaussian_constraint_moments():
+    """The "truncate" constraint: the leak's marginal becomes the truncated normal (mean
+    and variance), and a correlated state moves along its regression."""
+    from scipy.stats import truncnorm
+    from fdi.ukf import _truncate_leaks
+    n = 12
+    P = np.eye(n) * 0.5
+    P[8, 8] = 0.04
+    P[7, 7] = 0.01
+    P[10, 8] = P[8, 10] = 0.1  # offset correlated with K_extA
+    z = np.zeros(n)
+    z[8] = -0.1
+    z[7] = 0.3  # K_int far above its bound: (almost) untouched
+    z0, P0 = z.copy(), P.copy()
+    _truncate_leaks(z, P, True, 0.0)
+    s = 0.2
+    ref = truncnorm((0 - z0[8]) / s, np.inf, loc=z0[8], scale=s)
+    assert z[8] == pytest.approx(ref.mean(), rel=1e-9)
+    assert P[8, 8] == pytest.approx(ref.var(), rel=1e-9)
+    assert z[10] - z0[10] == pytest.approx(P0[10, 8] / P0[8, 8] * (ref.mean() - z0[8]), rel=1e-9)
+    assert abs(z[7] - z0[7]) < 0.01 and np.all(np.linalg.eigvalsh(P) > 0)
+
+
+@pytest.mark.parametrize("constraint", ["project_joint", "truncate"])
+def test_constraint_options_keep_leaks_non_negative(plant_vector, constraint):
+    runs = _runs(plant_vector, T=1501, seed=4)
+    cfg = FilterConfig(constraint=constraint, calibrate=("m_L",))
+    out = run_filter(runs.inp, cfg)
+    assert np.all(np.isfinite(out.mean))
+    for j in (7, 8, 9):
+        assert out.mean[0, :, j].min() >= 0.0
+    with pytest.raises(ValueError):
+        run_filter(runs.inp, FilterConfig(constraint="nonsense"))
+
+
+def test_freeze_calibration_states(plant_vector):
+    """freeze_calib_s: from then on the (non-free) calibration states are constants."""
+    runs = _runs(plant_vector, T=801, seed=6)
+    cfg = FilterConfig(calibrate=("m_L", "B_eff"), freeze_calib_s=0.4)
+    out = run_filter(runs.inp, cfg)
+    c_B = out.mean[0, :, 13]
+    assert np.all(np.isfinite(out.mean)) and out.n_jitter[0] == 0
+    assert np.ptp(c_B[401:]) < 1e-9 * max(1.0, abs(c_B[400]))  # frozen
+    assert np.ptp(out.mean[0, 401:, 12]) > 0  # m_L stays free
+
+
+def test_soft_freeze_shrinks_calibration_std(plant_vector):
+    """freeze_sd_factor > 0: at the freeze the (non-free) calibration states keep their mean,
+    their std is multiplied by the factor, and from then on they have no process noise."""
+    runs = _runs(plant_vector, T=801, seed=6)
+    base = FilterConfig(calibrate=("m_L", "B_eff"))
+    soft = base.with_(freeze_calib_s=0.4, freeze_sd_factor=0.5)
+    ref = run_filter(runs.inp, base.with_(q_calib=0.0, calib_noise=(("m_L", 0.25, 0.05), ("B_eff", 0.02, 0.0))))
+    out = run_filter(runs.inp, soft.with_(calib_noise=(("m_L", 0.25, 0.05), ("B_eff", 0.02, 0.0))))
+    assert np.all(np.isfinite(out.mean)) and out.n_jitter[0] == 0
+    # identical up to the freeze (B_eff has no process noise in either run)
+    assert np.max(np.abs(out.mean[0, :400] - ref.mean[0, :400]) / state_scale(out.config)) < 1e-9
+    # the freeze happens in the step-400 predict: its std is then below the unfrozen one
+    assert out.std[0, 400, 13] < 0.6 * ref.std[0, 400, 13]
+    assert np.all(out.std[0, 401:, 13] <= out.std[0, 400, 13] * (1 + 1e-9))
