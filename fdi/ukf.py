@@ -281,6 +281,30 @@ def _robust_sqrt(P, c, jitter, L):
 
 
 @numba.njit(cache=True)
+def _draw_sigma_points(Pm, P0, z, c, jitter, L, sig, counts):
+    """Merwe sigma points of N(z, Pm) into sig (2n+1, n), as filterpy draws them.
+
+    A covariance whose Cholesky factor needs jitter is counted in counts[1]; one
+    that fails even then is restarted from P0 (counts[2]), the filter's last resort.
+    """
+    n = z.shape[0]
+    tries = _robust_sqrt(Pm, c, jitter, L)
+    if tries < 0:
+        Pm[:, :] = P0
+        counts[2] += 1
+        _robust_sqrt(Pm, c, jitter, L)
+    elif tries > 0:
+        counts[1] += 1
+    # filterpy: sigmas[k+1] = x + U[k], U = cholesky upper = L^T -> U[k] = L[:, k]
+    for j in range(n):
+        sig[0, j] = z[j]
+    for i in range(n):
+        for j in range(n):
+            sig[1 + i, j] = z[j] + L[j, i]
+            sig[1 + n + i, j] = z[j] - L[j, i]
+
+
+@numba.njit(cache=True)
 def _measure(sig, pos_kind, L1, L2, L3, out):
     """Measurement function of one scaled state: [p_A, p_B, x or theta] (scaled)."""
     out[0] = sig[0] * (1e6 / MEAS_SCALE_P)
@@ -395,20 +419,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
         # ---------------- predict (from the posterior at k-1, with u[k-1])
         if k > 0:
             for b in range(B):
-                tries = _robust_sqrt(Pm[b], n + lam, jitter, L)
-                if tries < 0:  # last resort: start the covariance afresh
-                    Pm[b, :, :] = P0[b]
-                    counts[b, 2] += 1
-                    tries = _robust_sqrt(Pm[b], n + lam, jitter, L)
-                elif tries > 0:
-                    counts[b, 1] += 1
-                # filterpy: sigmas[k+1] = x + U[k], U = cholesky upper = L^T -> U[k] = L[:, k]
-                for j in range(n):
-                    sig[b, 0, j] = z[b, j]
-                for i in range(n):
-                    for j in range(n):
-                        sig[b, 1 + i, j] = z[b, j] + L[j, i]
-                        sig[b, 1 + n + i, j] = z[b, j] - L[j, i]
+                _draw_sigma_points(Pm[b], P0[b], z[b], n + lam, jitter, L, sig[b], counts[b])
                 for i in range(ns):
                     r = b * ns + i
                     for j in range(N_MODEL):
@@ -446,19 +457,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
         # filterpy (1.4.5) redraws the sigma points from the prior (x-, P- including Q)
         # for the update; so do we (at k = 0 the prior is the initial x0, P0).
         for b in range(B):
-            tries = _robust_sqrt(Pm[b], n + lam, jitter, L)
-            if tries < 0:
-                Pm[b, :, :] = P0[b]
-                counts[b, 2] += 1
-                tries = _robust_sqrt(Pm[b], n + lam, jitter, L)
-            elif tries > 0:
-                counts[b, 1] += 1
-            for j in range(n):
-                sig[b, 0, j] = z[b, j]
-            for i in range(n):
-                for j in range(n):
-                    sig[b, 1 + i, j] = z[b, j] + L[j, i]
-                    sig[b, 1 + n + i, j] = z[b, j] - L[j, i]
+            _draw_sigma_points(Pm[b], P0[b], z[b], n + lam, jitter, L, sig[b], counts[b])
         # ---------------- update
         for b in range(B):
             L1 = base[b, param_L1]
