@@ -222,6 +222,10 @@ def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: 
     cands = []
     for tname in TARGETS:
         for fname, (fv, funit) in feats.items():
+            if tname != "F_d" and fname == "1":
+                # a flow into a chamber that does not depend on any state is not a physical term: a leak
+                # vanishes with its pressure drop, and a constant valve flow is the spool offset, calibrated
+                continue
             rms = float(np.sqrt(np.mean(fv ** 2)))
             if rms == 0:
                 continue

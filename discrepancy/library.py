@@ -54,6 +54,7 @@ class Hypothesis:
     shows: str  # the signature: where it shows in the data
     starts: tuple[dict[str, float], ...] = field(default_factory=tuple)  # grid of starting values
     probe: dict[str, float] = field(default_factory=dict)  # a small realistic magnitude for the signature
+    nominal: dict[str, float] = field(default_factory=dict)  # the plant's value, for effects that change one
 
     def summary(self, values: dict[str, float]) -> str:
         parts = []
@@ -164,6 +165,7 @@ def library(plant: Plant) -> tuple[Hypothesis, ...]:
             starts=tuple({"F_C": f.F_C * a, "F_S": f.F_S * a, "b": max(f.b, 100.0) * c}
                          for a in (0.3, 1.0, 3.0) for c in (0.3, 1.0, 3.0)),
             probe={"F_C": f.F_C * 2, "F_S": f.F_S * 2},
+            nominal={"F_C": f.F_C, "F_S": f.F_S, "b": f.b},
         ),
         Hypothesis(
             "load_mass", "load mass or inertia error",
@@ -172,6 +174,7 @@ def library(plant: Plant) -> tuple[Hypothesis, ...]:
             "steady load pressure (p_A A_A - p_B A_B) off everywhere, more so in acceleration",
             starts=tuple({"m_L": max(m_L, 100.0) * a} for a in (0.3, 0.7, 1.4, 2.5)),
             probe={"m_L": max(m_L, 100.0) * 1.2},
+            nominal={"m_L": m_L},
         ),
         Hypothesis(
             "sensor_lag", "sensor lag (first-order)",

@@ -31,7 +31,7 @@ def _clean(obj):
 def _candidate_dict(c, rank: int) -> dict:
     return {
         "rank": rank, "name": c.name, "title": c.title, "accepted": c.accepted,
-        "evidence": {"signature_match": c.signature, "delta_bic": c.delta_bic,
+        "evidence": {"signature_match": c.signature, "delta_bic": c.delta_bic, "delta_bic_held_out": c.delta_bic_held,
                      "error_reduction_fit": c.gain_fit, "error_reduction_held_out": c.gain_held},
         "fitted": c.effect_values(), "fitted_text": c.summary(), "at_bounds": c.result.at_bounds,
         "where_it_shows": "; ".join(h.shows for h in c.hypothesis),

@@ -115,19 +115,44 @@ class SegmentSimulator:
             return self.seg.held_out
         return np.ones_like(self.seg.held_out)
 
-    def initial_states(self, params: np.ndarray) -> np.ndarray:
-        """(m * n_seg, 7) initial states for m parameter vectors."""
+    def _measured_start(self, meas: np.ndarray | None, m: int) -> dict[str, np.ndarray]:
+        """Smoothed measured pA, pB, x, v, a at each segment start, (m * n_seg,) each.
+
+        Under a measurement-side hypothesis the measured value at the start is not the state: with a
+        delay d the state at t is what the sensors show at t + d; with a first-order lag tau the state is
+        y_m + tau dy_m/dt. Starting each segment from the state the hypothesis implies keeps the segment
+        start-up from being mistaken for (or credited to) another effect.
+        """
         d, st = self.data, self.seg.starts
         sm = d.smooth
-        base = np.zeros((len(st), 7))
-        base[:, S.p_A] = sm["pA"][st]
-        base[:, S.p_B] = sm["pB"][st]
-        base[:, S.x] = sm["x"][st]
-        base[:, S.v] = sm["v"][st]
-        base[:, S.x_s] = d.x_s[st]
-        base[:, S.dx_s] = d.dx_s[st]
+        rates = {"pA": "dpA", "pB": "dpB", "x": "v", "v": "a", "a": None}
+        if meas is None or not np.any(meas):
+            return {k: np.tile(sm[k][st], m) for k in rates}
+        idx = np.arange(d.n, dtype=float)
+        out = {k: np.empty((m, len(st))) for k in rates}
+        for i in range(m):
+            tau, delay = meas[i]
+            pos = np.minimum(st + max(delay, 0.0) / d.dt, d.n - 1)
+            for k, rk in rates.items():
+                val = np.interp(pos, idx, sm[k])
+                if tau > 0 and rk is not None:
+                    val = val + tau * np.interp(pos, idx, sm[rk])
+                out[k][i] = val
+        return {k: v.reshape(-1) for k, v in out.items()}
+
+    def initial_states(self, params: np.ndarray, meas: np.ndarray | None = None) -> np.ndarray:
+        """(m * n_seg, 7) initial states for m parameter vectors (and measurement-side settings)."""
+        d, st = self.data, self.seg.starts
+        sm = d.smooth
         m = params.shape[0]
-        x0 = np.tile(base, (m, 1))
+        ms = self._measured_start(meas, m)
+        x0 = np.zeros((m * len(st), 7))
+        x0[:, S.p_A] = ms["pA"]
+        x0[:, S.p_B] = ms["pB"]
+        x0[:, S.x] = ms["x"]
+        x0[:, S.v] = ms["v"]
+        x0[:, S.x_s] = np.tile(d.x_s[st], m)
+        x0[:, S.dx_s] = np.tile(d.dx_s[st], m)
         # bristle deflection at its steady state for the segment's velocity
         pr = np.repeat(params, len(st), axis=0)
         v = x0[:, S.v]
@@ -138,7 +163,7 @@ class SegmentSimulator:
         # where the piston is (nearly) still the bristles hold whatever the force balance needs
         still = np.abs(v) < 5 * pr[:, P.v_s]
         if np.any(still):
-            a = np.tile(sm["a"][st], m)
+            a = ms["a"]
             u0 = np.tile(d.u[st], m)
             z_max = np.maximum(FC, FS) / pr[:, P.sigma_0]
             xs = np.ascontiguousarray(x0[still])
@@ -164,7 +189,7 @@ class SegmentSimulator:
         m = params.shape[0]
         n_seg, L = len(self.seg.starts), self.seg.length
         P_all = np.repeat(params, n_seg, axis=0)
-        x0 = self.initial_states(params)
+        x0 = self.initial_states(params, meas)
         u = np.tile(self.u_seg, (m, 1))
         tv = None
         if time_varying:
@@ -186,7 +211,12 @@ class SegmentSimulator:
                 for i in range(m):
                     tau, delay = meas[i]
                     if tau > 0:
+                        y0 = y[i][:, :1].copy()
                         y[i] = first_order_lag(y[i], self.data.dt, tau)
+                        # the sensor starts where the measurement is, not at the state (superposition of
+                        # the filter's initial-condition response)
+                        m0 = self.data.smooth[key][self.seg.starts][:, None]
+                        y[i] += (m0 - y0) * np.exp(-np.arange(L) * self.data.dt / tau)[None, :]
                     if delay > 0:
                         y[i] = time_delay(y[i], self.data.dt, delay)
             out[key] = y if full else y[:, :, self.seg.eval_idx]

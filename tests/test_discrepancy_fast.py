@@ -124,3 +124,29 @@ def test_parameters_at_bounds_are_reported(plant):
     rec = make_recording(dataclasses.replace(CASE["no_mismatch"], plant={"B_eff": 9e7}), duration=4.0, seed=5)
     rep = diagnose(rec.measured(), plant, generic=False)
     assert any("B_eff" in w and "bound" in w for w in rep.warnings)
+
+
+def test_segment_start_follows_a_measurement_side_hypothesis(plant):
+    # under a delay hypothesis the state at a segment start is what the sensors show `delay` later;
+    # under a lag hypothesis it is y_m + tau dy_m/dt
+    from discrepancy.simulation import SegmentSimulator
+
+    rec = make_recording(CASE["no_mismatch"], duration=4.0, seed=2).measured()
+    sim = SegmentSimulator(prepare(rec, plant))
+    st, sm = sim.seg.starts, sim.data.smooth
+    p = plant.vector()[None, :]
+    x_none = sim.initial_states(p)
+    x_delay = sim.initial_states(p, np.array([[0.0, 0.005]]))
+    x_lag = sim.initial_states(p, np.array([[0.01, 0.0]]))
+    assert np.allclose(x_none[:, sam.S.p_A], sm["pA"][st])
+    assert np.allclose(x_delay[:, sam.S.p_A], sm["pA"][st + 5])
+    assert np.allclose(x_lag[:, sam.S.p_A], sm["pA"][st] + 0.01 * sm["dpA"][st])
+
+
+def test_heldout_cases_are_generated_by_sam():
+    from discrepancy.heldout import HELDOUT, materialise
+
+    names = {c.name for c in HELDOUT}
+    assert not names & {c.name for c in CASES}
+    rec = make_recording(materialise({c.name: c for c in HELDOUT}["accumulator"]), duration=1.0, seed=2)
+    assert np.all(np.isfinite(rec.signals["pA"]))
