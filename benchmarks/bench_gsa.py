@@ -32,6 +32,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+CHUNK = 16384  # runs per checkpointed chunk (the CLI default for SAM studies)
+PRECISION = "float32"  # bootstrap replicate products, as `samfdi gsa run` does; estimates stay float64
 STUDIES = [ROOT / "scenarios" / "gsa" / "paper_parameters.toml", ROOT / "scenarios" / "gsa" / "paper_leakage.toml"]
 
 
@@ -48,9 +50,9 @@ def ours_child(N: int, out: str) -> None:
         spec = load_study(path)
         t0 = time.perf_counter()
         design = saltelli_design(spec.study.problem, N=N, seed=spec.seed)
-        res = run(spec.study, design, Path(out) / spec.study.name, chunk_size=4096, progress=False)
+        res = run(spec.study, design, Path(out) / spec.study.name, chunk_size=CHUNK, progress=False)
         t1 = time.perf_counter()
-        sobol = res.analyze(n_boot=1000, seed=spec.seed)
+        sobol = res.analyze(n_boot=1000, seed=spec.seed, precision=PRECISION)
         t2 = time.perf_counter()
         np.save(Path(out) / f"{spec.study.name}_Y_head.npy", res.Y[:, :16])
         timings[spec.study.name] = {"simulate_s": t1 - t0, "analyze_s": t2 - t1, "runs": design.n_runs,

@@ -32,6 +32,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="auto: the SAM model runs in-process on --workers threads, others in processes")
     p.add_argument("--scheduler", default=None, help="dask.distributed scheduler ADDRESS (implies dask)")
     p.add_argument("--chunk-size", type=int, default=None, help="runs per checkpointed chunk")
+    p.add_argument("--precision", choices=("float32", "float64"), default="float32",
+                   help="arithmetic of the bootstrap replicates (point estimates are always "
+                        "float64); float32 moves the interval bounds by ~1e-7 and is ~1.5x faster")
     p.add_argument("--resume", action="store_true", help="continue a killed run in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_command)
@@ -68,7 +71,7 @@ def _run(args: argparse.Namespace) -> int:
     if is_sam:
         threads = workers if executor == "inline" else 1
         study = dataclasses.replace(study, model=dataclasses.replace(study.model, threads=threads))
-    chunk = args.chunk_size or (4096 if is_sam else 65536)
+    chunk = args.chunk_size or (16384 if is_sam else 65536)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
@@ -79,7 +82,7 @@ def _run(args: argparse.Namespace) -> int:
                      resume=args.resume, progress=not args.no_progress)
         kwargs = {"estimator": estimator} if estimator else {}
         sobol = result.analyze(n_boot=args.bootstrap if args.bootstrap is not None else spec.n_bootstrap,
-                               ci=spec.ci, seed=spec.seed, **kwargs)
+                               ci=spec.ci, seed=spec.seed, precision=args.precision, **kwargs)
     runtime = time.perf_counter() - t0
     paths = write_report(sobol, spec, args.out, runtime)
     print(f"{study.name}: {design.n_runs} runs, {study.M} outputs, estimator {sobol.estimator}, "

@@ -11,9 +11,10 @@ Output folder layout::
     OUT/chunks/chunk_00001.npy   Y rows [chunk_size, 2 chunk_size) ...
     OUT/nonfinite.json           only if some runs returned NaN/inf
 
-Every chunk is written to a temporary file, fsync'ed and renamed over its final
-name (``os.replace``, atomic on POSIX), so a chunk file that exists is complete,
-even after SIGKILL or power loss. Resuming (``resume=True``) loads the existing
+Every chunk is written to a temporary file and renamed over its final name
+(``os.replace``, atomic on POSIX), so a chunk file that exists is complete even
+after SIGKILL; one damaged by a power loss fails to load on resume and is
+computed again (with a warning). Resuming (``resume=True``) loads the existing
 chunks and computes only the missing ones; as every value depends only on its
 own row of X, a resumed run equals an uninterrupted one bit for bit, whatever
 the executor, worker count or chunk size.
@@ -33,8 +34,9 @@ import numbers
 import os
 import pickle
 import uuid
+import warnings
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,7 +45,7 @@ from tqdm.auto import tqdm
 
 from gsa.analyze import SobolResult, analyze
 from gsa.design import Design
-from gsa.errors import GSAError
+from gsa.errors import GSAError, GSAWarning
 from gsa.nonfinite import NonFiniteReport
 from gsa.problem import Problem
 
@@ -179,9 +181,16 @@ def run(
     bounds = [(r0, min(n_runs, r0 + chunk_size)) for r0 in range(0, n_runs, chunk_size)]
     chunks = out / CHUNK_DIR
     Y = np.empty((n_runs, M))
-    done = [i for i in range(len(bounds)) if (chunks / chunk_name(i)).exists()]
-    for i in done:
-        Y[slice(*bounds[i])] = _load_chunk(chunks / chunk_name(i), bounds[i], M)
+    done = []
+    for i in range(len(bounds)):
+        path = chunks / chunk_name(i)
+        if not path.exists():
+            continue
+        try:
+            Y[slice(*bounds[i])] = _load_chunk(path, bounds[i], M)
+            done.append(i)
+        except GSAError as e:  # e.g. a power loss before the OS wrote it out: recompute it
+            warnings.warn(f"{e}; recomputing it", GSAWarning, stacklevel=2)
     done_set = set(done)
     pending = [i for i in range(len(bounds)) if i not in done_set]
 
@@ -195,20 +204,26 @@ def run(
     )
     tasks = [(i, design.rows(*bounds[i])) for i in pending]
     results = _EXECUTE[executor](study.model, tasks, workers=workers, scheduler=scheduler)
-    try:
-        for i, Y_chunk in results:
-            Y_chunk = _as_chunk_outputs(Y_chunk, i, bounds[i], M)
-            _save_atomic(chunks / chunk_name(i), Y_chunk)
-            Y[slice(*bounds[i])] = Y_chunk
-            bar.update(len(Y_chunk))
-    except Exception as e:
-        e.add_note(
-            f"[gsa] finished chunks are saved in {chunks}; run again with resume=True "
-            f"(--resume) to compute only the missing ones"
-        )
-        raise
-    finally:
-        bar.close()
+    # Chunks are written by one background thread, so the disk works while the next
+    # chunk computes; leaving the `with` waits for every started write.
+    with ThreadPoolExecutor(max_workers=1) as writer:
+        try:
+            writes = []
+            for i, Y_chunk in results:
+                Y_chunk = _as_chunk_outputs(Y_chunk, i, bounds[i], M)
+                Y[slice(*bounds[i])] = Y_chunk
+                writes.append(writer.submit(_save_atomic, chunks / chunk_name(i), Y_chunk))
+                bar.update(len(Y_chunk))
+            for w in writes:
+                w.result()  # a failed write is an error of the run
+        except Exception as e:
+            e.add_note(
+                f"[gsa] finished chunks are saved in {chunks}; run again with resume=True "
+                f"(--resume) to compute only the missing ones"
+            )
+            raise
+        finally:
+            bar.close()
 
     report = NonFiniteReport.from_outputs(design, Y, study.output_names)
     if report:
@@ -327,12 +342,11 @@ def _load_chunk(path: Path, bounds: tuple[int, int], M: int) -> np.ndarray:
     try:
         Y = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as e:
-        raise GSAError(f"{path}: unreadable chunk ({e}); move it away to recompute it") from None
+        raise GSAError(f"{path}: unreadable chunk ({e})") from None
     rows = bounds[1] - bounds[0]
     if Y.shape != (rows, M) or Y.dtype != np.float64:
         raise GSAError(
-            f"{path}: expected float64 of shape ({rows}, {M}), found {Y.dtype} {Y.shape}; "
-            f"move it away to recompute it"
+            f"{path}: expected float64 of shape ({rows}, {M}), found {Y.dtype} {Y.shape}"
         )
     return Y
 
@@ -357,12 +371,14 @@ def _as_chunk_outputs(Y, index: int, bounds: tuple[int, int], M: int) -> np.ndar
 
 
 def _save_atomic(path: Path, array: np.ndarray) -> None:
+    """Write a chunk under a temporary name, then rename it: the final name only ever
+    holds a complete chunk, even after SIGKILL. No fsync: the chunks of a study are
+    GBs and waiting for the disk doubled the run time; a chunk lost to a power
+    failure fails to load on resume and is computed again."""
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     with open(tmp, "wb") as f:
         np.save(f, array, allow_pickle=False)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)  # atomic: the final name only ever holds a complete chunk
+    os.replace(tmp, path)
 
 
 def _write_json_atomic(path: Path, obj) -> None:

@@ -27,10 +27,11 @@ from .geometry import (
 from .hydraulics import fault_leakages, flow_coefficient, pressure_rate, valve_flows
 from .params import P
 
-jit = numba.njit(cache=True)
+# error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
+jit = numba.njit(cache=True, error_model="numpy")
 # The per-step functions are inlined into their callers' loops: a numba call that
 # passes arrays costs reference-count traffic that doubled the time of a step.
-jit_inline = numba.njit(cache=True, inline="always")
+jit_inline = numba.njit(cache=True, inline="always", error_model="numpy")
 
 
 class S(IntEnum):

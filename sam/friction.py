@@ -10,7 +10,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-jit = numba.njit(cache=True)
+# error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
+jit = numba.njit(cache=True, error_model="numpy")
 
 
 @jit

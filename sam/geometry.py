@@ -23,7 +23,8 @@ import numpy as np
 
 from .constants import G
 
-jit = numba.njit(cache=True)
+# error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
+jit = numba.njit(cache=True, error_model="numpy")
 
 
 @jit

@@ -14,7 +14,8 @@ import numpy as np
 
 from .constants import KAPPA_AIR, LEAK_REFERENCE_DP, LPM, P_ATM, P_CAVITATION
 
-jit = numba.njit(cache=True)
+# error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
+jit = numba.njit(cache=True, error_model="numpy")
 
 
 @jit

@@ -20,7 +20,8 @@ from .geometry import external_force
 from .params import P, PARAM_NAMES
 
 
-@numba.njit(cache=True, parallel=True)
+# nogil: a caller's other threads (e.g. the GSA runner writing finished chunks) run meanwhile
+@numba.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
 def _simulate_kernel(x0, params, u, tv_cols, tv_vals, rederive, dt, n_steps, record_at, channels, out, flags):
     """x0 (n,7); params (n,np); u (1|n, n_steps); tv_vals (1|n, m, n_steps);
     record_at (n_rec,) sorted step indices in [0, n_steps]; out (n, n_chan, n_rec)."""

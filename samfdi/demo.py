@@ -100,7 +100,7 @@ def _demo_gsa(out: Path) -> None:
         args = argparse.Namespace(
             study=studies / f"{name}.toml", out=out / f"gsa_{name}", n=DEMO_GSA_N, estimator=None,
             bootstrap=DEMO_GSA_BOOTSTRAP, workers=None, executor="auto", scheduler=None,
-            chunk_size=None, resume=False, no_progress=True)
+            chunk_size=None, precision="float32", resume=False, no_progress=True)
         with contextlib.redirect_stdout(io.StringIO()):
             run_command(args)
         ranking = _steady_ranking(out / f"gsa_{name}" / "ranking.csv")
