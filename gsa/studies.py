@@ -20,7 +20,7 @@ from gsa.problem import DISTRIBUTIONS, Problem
 from gsa.runner import Study
 from gsa.testfunctions import ishigami, ishigami_indices, sobol_g, sobol_g_indices
 from sam.constants import LPM
-from sam.errors import UserError, where
+from sam.errors import UserError, did_you_mean, where
 
 #: Units a study may give bounds in, and their factor to SI.
 UNITS = {"1": 1.0, "SI": 1.0, "%": 0.01, "L/min": LPM, "bar": 1e5, "MPa": 1e6, "Pa": 1.0,
@@ -84,13 +84,9 @@ def study_from_table(table: dict[str, Any], source: Path) -> StudySpec:
 
 
 def _no_unknown(table: dict, allowed: set, source, prefix: str) -> None:
-    import difflib
-
     for key in table:
         if key not in allowed:
-            match = difflib.get_close_matches(key, sorted(allowed), n=1)
-            hint = f" (did you mean '{match[0]}'?)" if match else ""
-            raise UserError(f"{where(source, prefix + key)}: unknown key{hint}")
+            raise UserError(f"{where(source, prefix + key)}: unknown key{did_you_mean(key, allowed)}")
 
 
 def _problem(table, source) -> tuple[Problem, tuple[str, ...]]:

@@ -7,6 +7,7 @@ stderr and a non-zero exit code; it never shows a traceback for these.
 
 from __future__ import annotations
 
+import difflib
 from pathlib import Path
 
 
@@ -25,3 +26,9 @@ def where(path: str | Path | None, field: str | None = None, row: int | None = N
     if field is not None:
         parts.append(f"'{field}'" if row is None else f"'{field}' (row {row})")
     return ": ".join(parts)
+
+
+def did_you_mean(key: str, known) -> str:
+    """`` (did you mean 'x'?)`` for the closest known name to a mistyped key, or ``""``."""
+    match = difflib.get_close_matches(key, sorted(known), n=1)
+    return f" (did you mean '{match[0]}'?)" if match else ""

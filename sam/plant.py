@@ -17,7 +17,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from .errors import UserError, where
+from .errors import UserError, did_you_mean, where
 from .params import (
     Boom, Cylinder, Effects, Fluid, Friction, Plant, Supply, Valve,
 )
@@ -96,8 +96,7 @@ def plant_from_table(table: dict[str, Any], source: str | Path = "<plant>") -> P
         known = {f.name for f in dataclasses.fields(cls)}
         for key in values:
             if key not in known:
-                hint = _close_match(key, known)
-                raise UserError(f"{where(source, f'{group}.{key}')}: unknown key{hint}")
+                raise UserError(f"{where(source, f'{group}.{key}')}: unknown key{did_you_mean(key, known)}")
         for key, value in values.items():
             values[key] = _check_value(source, group, key, value)
         missing = [f.name for f in dataclasses.fields(cls)
@@ -108,13 +107,6 @@ def plant_from_table(table: dict[str, Any], source: str | Path = "<plant>") -> P
     plant = Plant(name=str(table.get("name", "plant")), **groups)
     _check_relations(plant, source)
     return plant
-
-
-def _close_match(key: str, known: set[str]) -> str:
-    import difflib
-
-    match = difflib.get_close_matches(key, sorted(known), n=1)
-    return f" (did you mean '{match[0]}'?)" if match else ""
 
 
 def _check_value(source, group: str, key: str, value: Any) -> float:

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from .constants import DT_DEFAULT
-from .errors import UserError, where
+from .errors import UserError, did_you_mean, where
 from .measurement import Sensors, measure
 from .params import P, Plant
 from .plant import load_plant, read_toml
@@ -84,7 +84,8 @@ def load_scenario(path: str | Path) -> Scenario:
 def scenario_from_table(table: dict[str, Any], source: Path) -> Scenario:
     for key in table:
         if key not in _TOP_KEYS:
-            raise UserError(f"{where(source, key)}: unknown key; allowed: {sorted(_TOP_KEYS)}")
+            raise UserError(f"{where(source, key)}: unknown key{did_you_mean(key, _TOP_KEYS)}; "
+                            f"allowed: {sorted(_TOP_KEYS)}")
     base = source.parent
     plant_path = table.get("plant")
     if plant_path is not None and not isinstance(plant_path, str):
