@@ -17,7 +17,7 @@ import numpy as np
 
 from .dynamics import DERIVE_INPUTS, FLAG_CAVITATION, N_DERIVED, N_STATES, S, areas, derive, euler_step
 from .geometry import external_force
-from .params import P, PARAM_NAMES
+from .params import P
 
 
 # nogil: a caller's other threads (e.g. the GSA runner writing finished chunks) run meanwhile
@@ -157,4 +157,4 @@ def _leak_divider(p: np.ndarray, into: str, out_of: str) -> np.ndarray:
     return np.where(total > 0, (k_in * p[:, P.p_S] + k_out * p[:, P.p_T]) / safe, p[:, P.p_T])
 
 
-__all__ = ["BatchResult", "simulate_batch", "initial_state", "PARAM_NAMES"]
+__all__ = ["BatchResult", "simulate_batch", "initial_state"]
