@@ -133,6 +133,13 @@ class FilterConfig:
     #: per-parameter (name, p0, q) overrides of p0_calib/q_calib. The load mass is
     #: unknown (0-800 kg around a nominal 494 kg): relative std 0.25, 0.05/sqrt(s).
     calib_noise: tuple = (("m_L", 0.25, 0.05),)
+    #: unknown-input states: parameters of ``sam.P`` whose ABSOLUTE value is estimated as a
+    #: random walk around their plant value (appended after the calibration states), e.g.
+    #: ("Q_dA", "Q_dB"), the disturbance flows into the chambers, for the mismatch
+    #: diagnosis' generic route. Units and default noise in :data:`DISTURBANCE_STATES`.
+    disturb: tuple = ()
+    #: per-parameter (name, p0, q) overrides of the DISTURBANCE_STATES defaults, SI units
+    disturb_noise: tuple = ()
     #: freeze the calibration states (except those in ``calib_free``) at this time [s]:
     #: their covariance rows are cleared (variance 1e-12 of the scaled unit) and their process
     #: noise set to 0, so that a fault appearing later is not shared with them. None: never.
@@ -175,14 +182,29 @@ class FilterConfig:
         return replace(self, **kw)
 
 
+#: Unknown-input states (``FilterConfig.disturb``): parameter -> (internal unit, default
+#: initial std, default random-walk std per sqrt(s)), SI. Flows in L/min, forces in kN.
+DISTURBANCE_STATES = {
+    "Q_dA": (1e-3 / 60, 1e-3 / 60, 2e-3 / 60),  # m^3/s: unit 1 L/min, p0 1 L/min, q 2 L/min/sqrt(s)
+    "Q_dB": (1e-3 / 60, 1e-3 / 60, 2e-3 / 60),
+}
+
+
+def n_states(cfg: "FilterConfig") -> int:
+    """Number of filter states under cfg."""
+    return N_AUG + len(cfg.calibrate) + len(cfg.disturb)
+
+
 def state_names(cfg: "FilterConfig") -> tuple[str, ...]:
-    """Names of the filter states under cfg: the 12 base states, then ``c_<param>``."""
-    return STATE_NAMES + tuple(f"c_{name}" for name in cfg.calibrate)
+    """Names of the filter states under cfg: the 12 base states, then ``c_<param>``,
+    then the unknown inputs under their parameter names."""
+    return STATE_NAMES + tuple(f"c_{name}" for name in cfg.calibrate) + tuple(cfg.disturb)
 
 
 def state_scale(cfg: "FilterConfig") -> np.ndarray:
     """Internal unit of every state under cfg (calibration states: 1 %)."""
-    return np.concatenate([SCALE, np.full(len(cfg.calibrate), 1e-2)])
+    dist = [DISTURBANCE_STATES[name][0] for name in cfg.disturb]
+    return np.concatenate([SCALE, np.full(len(cfg.calibrate), 1e-2), np.asarray(dist, float)])
 
 
 def param_layout(cfg: "FilterConfig") -> tuple[np.ndarray, np.ndarray]:
@@ -190,19 +212,25 @@ def param_layout(cfg: "FilterConfig") -> tuple[np.ndarray, np.ndarray]:
     for name in cfg.calibrate:
         if name not in P.__members__:
             raise ValueError(f"calibrate: {name!r} is not a parameter of sam.P")
-    cols = np.concatenate([PARAM_COLS, np.array([int(P[n]) for n in cfg.calibrate], dtype=np.int64)])
-    rel = np.concatenate([np.zeros(len(PARAM_COLS)), np.ones(len(cfg.calibrate))])
+    for name in cfg.disturb:
+        if name not in DISTURBANCE_STATES:
+            raise ValueError(f"disturb: {name!r} is not one of {sorted(DISTURBANCE_STATES)}")
+    extra = cfg.calibrate + cfg.disturb
+    cols = np.concatenate([PARAM_COLS, np.array([int(P[n]) for n in extra], dtype=np.int64)])
+    rel = np.concatenate([np.zeros(len(PARAM_COLS)), np.ones(len(cfg.calibrate)), np.zeros(len(cfg.disturb))])
     return cols.astype(np.int64), rel
 
 
 def noise_vectors(cfg: "FilterConfig") -> tuple[np.ndarray, np.ndarray]:
     """(q, p0) in SI units (relative for calibration states), one per state."""
-    nc = len(cfg.calibrate)
     over = {name: (p0_, q_) for name, p0_, q_ in cfg.calib_noise}
     qc = [over.get(name, (cfg.p0_calib, cfg.q_calib))[1] for name in cfg.calibrate]
     pc = [over.get(name, (cfg.p0_calib, cfg.q_calib))[0] for name in cfg.calibrate]
-    q = np.concatenate([np.asarray(cfg.q, float), np.asarray(qc, float)])
-    p0 = np.concatenate([np.asarray(cfg.p0, float), np.asarray(pc, float)])
+    over_d = {name: (p0_, q_) for name, p0_, q_ in cfg.disturb_noise}
+    pd = [over_d.get(name, DISTURBANCE_STATES[name][1:])[0] for name in cfg.disturb]
+    qd = [over_d.get(name, DISTURBANCE_STATES[name][1:])[1] for name in cfg.disturb]
+    q = np.concatenate([np.asarray(cfg.q, float), np.asarray(qc, float), np.asarray(qd, float)])
+    p0 = np.concatenate([np.asarray(cfg.p0, float), np.asarray(pc, float), np.asarray(pd, float)])
     return q, p0
 
 
@@ -652,7 +680,7 @@ def initial_mean(inp: FilterInput, cfg: "FilterConfig | None" = None) -> np.ndar
 
     cfg = FilterConfig() if cfg is None else cfg
     B = inp.u.shape[0]
-    n = N_AUG + len(cfg.calibrate)
+    n = n_states(cfg)
     scale = state_scale(cfg)
     z0 = np.zeros((B, n))
     for b in range(B):
@@ -665,6 +693,8 @@ def initial_mean(inp: FilterInput, cfg: "FilterConfig | None" = None) -> np.ndar
         full = np.zeros(n)
         full[S.p_A], full[S.p_B], full[S.x] = pa, pb, x
         full[N_MODEL:N_AUG] = p[PARAM_COLS]
+        for i, name in enumerate(cfg.disturb):  # unknown inputs start at their plant value
+            full[N_AUG + len(cfg.calibrate) + i] = p[P[name]]
         z0[b] = full / scale
     return z0
 
@@ -683,7 +713,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     if cfg.constraint not in _CONSTRAINTS:
         raise ValueError(f"FilterConfig.constraint: {cfg.constraint!r} is not one of {sorted(_CONSTRAINTS)}")
     B, T = inp.u.shape
-    n = N_AUG + len(cfg.calibrate)
+    n = n_states(cfg)
     scale = state_scale(cfg)
     cols, rel = param_layout(cfg)
     q, p0 = noise_vectors(cfg)

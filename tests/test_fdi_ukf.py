@@ -198,3 +198,27 @@ def test_soft_freeze_shrinks_calibration_std(plant_vector):
     # the freeze happens in the step-400 predict: its std is then below the unfrozen one
     assert out.std[0, 400, 13] < 0.6 * ref.std[0, 400, 13]
     assert np.all(out.std[0, 401:, 13] <= out.std[0, 400, 13] * (1 + 1e-9))
+
+
+def test_unknown_input_state_recovers_a_concealed_chamber_flow(plant_vector):
+    """A constant 0.5 L/min flow out of chamber A (sam's Q_dA input) that the filter is
+    not told about is recovered by the absolute unknown-input state Q_dA, while Q_dB stays
+    near 0. The fault states are held fixed (zero walk, tiny prior) so that they cannot
+    take the flow instead."""
+    t = np.arange(4001) * DT
+    q_dA = -0.5e-3 / 60  # m^3/s
+    runs = _runs(plant_vector, T=4001, faults={"Q_dA": profile("constant", q_dA, t)})
+    base = FilterConfig()
+    q = list(base.q)
+    p0 = list(base.p0)
+    for i in range(7, 11):
+        q[i] = 0.0
+        p0[i] = 1e-6 * p0[i]
+    cfg = base.with_(q=tuple(q), p0=tuple(p0), disturb=("Q_dA", "Q_dB"))
+    out = run_filter(runs.inp, cfg)
+    est_A, sd_A = out.estimate("Q_dA")
+    est_B, _ = out.estimate("Q_dB")
+    late = slice(2000, None)
+    assert est_A[0, late].mean() == pytest.approx(q_dA, rel=0.2)
+    assert abs(est_B[0, late].mean()) < 0.2 * abs(q_dA)
+    assert np.all(np.isfinite(sd_A))
