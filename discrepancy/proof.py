@@ -45,8 +45,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--case", action="append")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--set", choices=("dev", "heldout"), default="dev",
-                    help="dev: the development cases; heldout: the robustness set (never tuned on)")
+    ap.add_argument("--set", choices=("dev", "heldout", "heldout2"), default="dev",
+                    help="dev: the development cases; heldout, heldout2: the robustness sets (never tuned on)")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     args = ap.parse_args(argv)
     if args.set == "heldout":
@@ -54,6 +54,11 @@ def main(argv=None) -> int:
         cases = [materialise(c) for c in HELDOUT]
         if args.seed == 1:
             args.seed = 2
+    elif args.set == "heldout2":
+        from .heldout2 import HELDOUT2, SEED
+        cases = list(HELDOUT2)
+        if args.seed == 1:
+            args.seed = SEED
     else:
         cases = list(CASES)
     plant = sam.load_plant()
