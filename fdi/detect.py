@@ -81,6 +81,13 @@ class Thresholds:
     #: the filter configuration (a name in fdi.ukf.PRESETS) these thresholds were derived
     #: for; replay and tune run that filter
     filter: str = "shipped"
+    #: how an alarm is isolated and sized: "signature" (the first alarming hypothesis, the
+    #: confusable pairs, the estimate's change; sessions 1-5) or "likelihood" (the bank of
+    #: constrained filters of fdi.isolate, session 6)
+    isolation: str = "likelihood"
+    #: "likelihood": the stated false-isolation level the log-likelihood margin is derived
+    #: from (fdi.isolate.margin_for); not fitted to any run
+    false_isolation_level: float = 0.01
 
     @classmethod
     def load(cls, path: str | Path) -> "Thresholds":
@@ -238,6 +245,10 @@ class Diagnosis:
     filter_health: dict
     thresholds: dict
     note: str = ""
+    #: "likelihood" isolation: when the bank decided [s] (None: not isolable or not run), and
+    #: each hypothesis' log-likelihood relative to the best [nats] at that instant
+    isolation_time_s: float | None = None
+    likelihood: dict = field(default_factory=dict)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2, default=float)
@@ -248,8 +259,10 @@ def _normal_cdf(x: float) -> float:
 
 
 def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
-             stats: dict | None = None, baseline=None) -> Diagnosis:
-    """The diagnosis of filter run b."""
+             stats: dict | None = None, baseline=None, decision=None) -> Diagnosis:
+    """The diagnosis of filter run b. With ``th.isolation == "likelihood"`` an alarm is
+    isolated and sized by the likelihood bank (``decision``: a precomputed
+    :class:`fdi.isolate.Decision` of run b, else it is computed here)."""
     th = Thresholds.shipped() if th is None else th
     stats = stats if stats is not None else statistics(out, th, baseline)
     t = out.t
@@ -286,7 +299,11 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
               "covariance_resets": int(out.n_cov_reset[b]), "state_resets": int(out.n_state_reset[b])}
     names = sorted(alarms, key=alarms.get)
     note = ""
-    if not names:
+    iso_time, lik = None, {}
+    use_bank = th.isolation == "likelihood" and names and out.inp is not None
+    if use_bank:
+        status, isolated, size, conf, iso_time, lik, note = _likelihood_isolation(out, th, b, stats, decision)
+    elif not names:
         if nis_time is not None:
             status, isolated = "fault, not isolable", []
             note = ("the model stopped fitting the measurements (NIS alarm) but no fault parameter "
@@ -307,10 +324,44 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
     return Diagnosis(
         status=status, isolated=isolated, detection_time_s=(alarms[names[0]] if names else nis_time),
         alarms=alarms, size=size, confidence=conf, model_fit_alarm_s=nis_time, filter_health=health,
+        isolation_time_s=iso_time, likelihood=lik,
         thresholds={"drift_sigma": th.drift, "h_sigma_s": dict(th.h), "warmup_s": th.warmup_s,
                     "baseline": "reference recording" if baseline is not None else
                     f"own estimates over [{th.warmup_s:g}, {th.warmup_s + th.baseline_s:g}] s",
                     "false_alarm_level": th.false_alarm_level, "run_length_s": th.run_length_s,
-                    "source": th.source},
+                    "isolation": th.isolation, "source": th.source},
         note=note,
     )
+
+
+def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict, decision=None):
+    """Status, isolated, size, confidence, isolation time, likelihoods and note of run b from
+    the likelihood bank (fdi.isolate): the bank runs over the whole record after the alarm."""
+    from . import isolate
+
+    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    margin = isolate.margin_for(th.false_isolation_level)
+    if decision is None:
+        k_ready = int(round((th.warmup_s + th.baseline_s) / dt))
+        decision = isolate.isolate(out, stats, th.h, k_ready, margin, rows=[b])[b]
+    d = decision
+    name = isolate.hypothesis_name(d.hypothesis or (d.candidates[0] if d.candidates else "offset"), d.size)
+    m, s = d.size, d.size_sd
+    if name.startswith("K_"):
+        size = {"value": float(leak_lpm(m)), "minus_2sigma": float(leak_lpm(m - 2 * s)),
+                "plus_2sigma": float(leak_lpm(m + 2 * s)), "unit": "L/min at 10 MPa", "K_m3_per_s_sqrtPa": m}
+    else:
+        size = {"value": 100 * m, "minus_2sigma": 100 * (m - 2 * s), "plus_2sigma": 100 * (m + 2 * s),
+                "unit": "% of spool travel"}
+    # confidence: posterior probability of each hypothesis with equal priors, exp(llr) normalised
+    w = {h: math.exp(v) for h, v in d.llr.items()}
+    tot = sum(w.values())
+    conf = {isolate.hypothesis_name(h, d.size if h == d.hypothesis else 0.0): v / tot for h, v in w.items()}
+    lik = {"log_likelihood_minus_best_nats": d.llr, "best_minus_healthy_nats": d.llr_none,
+           "margin_nats": margin, "bank_start_s": float(out.t[min(d.k0, len(out.t) - 1)])}
+    if d.hypothesis is not None:
+        return "fault", [name], {name: size}, conf, float(out.t[d.index]), lik, ""
+    cands = [isolate.hypothesis_name(h, d.size) for h in d.candidates]
+    note = (f"no single-fault hypothesis beats the others by {margin:.2g} nats (the margin of a "
+            f"{th.false_isolation_level:g} false-isolation level): {', '.join(cands)} explain the data alike")
+    return "fault, not isolable", cands, {name: size}, conf, None, lik, note
