@@ -1,17 +1,23 @@
 """The generic route: estimate unknown inputs, sparse-regress them on physical features.
 
-1. Unknown-input estimate (equation error): at every sample, the model's own
-   right-hand side (:func:`sam.dynamics.rhs`, called, never copied) is evaluated
-   at the smoothed measured state; what the measured pressure rates and
-   acceleration need beyond it is a disturbance flow into chamber A (Q_dA), into
-   chamber B (Q_dB) and a disturbance force on the piston (F_d), each obtained
-   through the model's own sensitivity to those inputs.
-2. Sparse regression (sequentially thresholded least squares) of each
-   disturbance on physically meaningful features; the sparsity is chosen by BIC
-   with an effective sample size that accounts for smoothing.
-3. The selected terms are re-fitted on simulation error (the term is fed to the
-   model as a time-varying disturbance input) and kept only if they pass the
-   same BIC and held-out test as a library hypothesis.
+1. Unknown-input estimate (default, ``estimator="ukf"``): the augmented UKF of
+   :mod:`fdi.ukf` (sigma points through ``sam.step_batch``, the calibrated plant)
+   with random-walk states for a disturbance flow into chamber A (Q_dA), into
+   chamber B (Q_dB) and a disturbance force on the piston (F_d); see
+   :mod:`discrepancy.unknown_input`.
+2. Sparse regression (weighted by the filter's posterior std, forward selection,
+   BIC with an effective sample size from the residual's correlation time) of each
+   estimate on physically meaningful features evaluated on the filtered states and
+   lagged like the estimate; what the calibration parameters could still absorb is
+   regressed along as a nuisance.
+3. The best-ranked terms are re-fitted on simulation error (the term is fed to the
+   model as a time-varying disturbance input), starting from the regression's
+   coefficient, and kept only if they pass the same BIC and held-out test as a
+   library hypothesis.
+
+``estimator="score_test"`` is the previous route: an equation-error estimate (the
+model's ``rhs`` at the smoothed measured states) reported, and the candidate terms
+ranked by a score test on simulation error.
 """
 
 from __future__ import annotations
@@ -21,16 +27,18 @@ import math
 import numba
 import numpy as np
 
-from sam import P
+from sam import P, S
 from sam.dynamics import N_DERIVED, N_STATES, derive, rhs
 
 from .data import Prepared
-from .fitting import FitResult, Model, Split, correlation_time, evaluate, fit
+from .fitting import FitResult, Model, Split, evaluate, fit
 from .library import Free
-from .simulation import SIGNALS, fits
+from .simulation import fits
+from .unknown_input import TARGETS as UI_TARGETS
+from .unknown_input import (Regression, calibration_nuisance, estimate_n_eff, estimate_unknown_inputs,
+                            input_sensitivity, lag_like_estimate, sparse_regression)
 
 TARGETS = {"Q_dA": "m^3/s", "Q_dB": "m^3/s", "F_d": "N"}
-MAX_TERMS = 3
 
 
 @numba.njit(cache=True)
@@ -73,9 +81,13 @@ def _ssqrt(x):
 
 
 def features(data: Prepared, p_S: float) -> dict[str, tuple[np.ndarray, str]]:
-    """Candidate terms: name -> (values on the sample grid, unit)."""
+    """Candidate terms: name -> (values on the sample grid, unit), at the smoothed measured states."""
     sm = data.smooth
-    pA, pB, v, x, xs = sm["pA"], sm["pB"], sm["v"], sm["x"], data.x_s
+    return features_at(sm["pA"], sm["pB"], sm["v"], sm["x"], data.x_s, p_S)
+
+
+def features_at(pA, pB, v, x, xs, p_S: float) -> dict[str, tuple[np.ndarray, str]]:
+    """Candidate terms at given states (each (T,), SI; xs the spool position, fraction of travel)."""
     dp = pA - pB
     sgn_v = np.tanh(v / 2e-3)
     return {
@@ -123,6 +135,7 @@ _FORMS = [
 
 
 def _map(terms: list[tuple[str, str]]) -> tuple[str, bool]:
+    """The named effect a set of (input, feature) terms has the form of, and whether the library holds it."""
     keys = set(terms)
     best, best_n = None, 0
     for form, text, lib in _FORMS:
@@ -134,38 +147,20 @@ def _map(terms: list[tuple[str, str]]) -> tuple[str, bool]:
     return best
 
 
-def stlsq(X: np.ndarray, y: np.ndarray, n_eff: float, max_terms: int = MAX_TERMS) -> np.ndarray:
-    """Sparse least squares: the BIC-best of greedy forward selections up to max_terms terms."""
-    n, m = X.shape
-    norms = np.linalg.norm(X, axis=0)
-    norms[norms == 0] = 1
-    Xn = X / norms
-    rss0 = float(np.dot(y, y))
-    best_coef, best_bic = np.zeros(m), n_eff * math.log(rss0 / n + 1e-300)
-    chosen: list[int] = []
-    for _ in range(max_terms):
-        trial = None
-        for j in range(m):
-            if j in chosen:
-                continue
-            cols = chosen + [j]
-            c, *_ = np.linalg.lstsq(Xn[:, cols], y, rcond=None)
-            rss = float(np.sum((y - Xn[:, cols] @ c) ** 2))
-            if trial is None or rss < trial[0]:
-                trial = (rss, j, c)
-        if trial is None:
-            break
-        rss, j, c = trial
-        chosen.append(j)
-        bic = n_eff * math.log(rss / n + 1e-300) + len(chosen) * math.log(n_eff)
-        if bic < best_bic - 10:
-            best_bic = bic
-            best_coef = np.zeros(m)
-            best_coef[chosen] = c
-    return best_coef / norms
-
-
 PROBE_RMS = {"Q_dA": 1e-6, "Q_dB": 1e-6, "F_d": 100.0}  # m^3/s, N: small test magnitudes of each term
+#: Unknown-input estimator of the route: "ukf" (augmented UKF + sparse regression) or "score_test"
+#: (the previous route: candidate terms ranked by a score test on simulation error).
+ESTIMATOR = "ukf"
+#: BIC drop a term must give in the sparse regression to be a candidate (as for a library hypothesis).
+BIC_STRONG = 10.0
+#: Filter start-up excluded from the regression [s]: the disturbance states start at 0 with a prior
+#: std of 1 L/min and the pressures from the first sample; with tau ~ 10-30 ms they settle well within it.
+WARMUP_S = 0.5
+#: Regression sample step [s]: the estimates are low-passed with tau ~ 10 ms (measured), so 5 ms
+#: keeps their information while cutting the regression cost five-fold.
+REG_STEP_S = 0.005
+#: Terms the sparse regression may select per unknown input (forward selection).
+REG_MAX_TERMS = 3
 
 
 def _term_model(final: FitResult, calib, terms, coefs, units, p_S: float):
@@ -195,30 +190,8 @@ def _term_model(final: FitResult, calib, terms, coefs, units, p_S: float):
     return model, start
 
 
-def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: float, hyps,
-                  n_fit: int = 4, max_terms: int = 2) -> dict:
-    """Run the generic route on the residual of ``final`` (calibrated model); JSON-able dict ('_*' keys excepted).
-
-    1. The unknown inputs Q_dA, Q_dB, F_d are estimated by equation error (reported).
-    2. Every candidate term (input, feature) is screened by a score test on
-       simulation error: the term is fed to the model at a small magnitude as a
-       time-varying input (one batch for all terms), the part the calibration
-       parameters could absorb is projected out, and the drop of squared error a
-       Gauss-Newton step would give is computed.
-    3. The best few are fitted on simulation error (with the calibration
-       parameters free); the BIC-best is kept; then a second term is tried.
-    """
-    fsim = split.fit_sim
-    p_S = final.params[P.p_S]
-    full = fsim.simulate(final.params[None, :], full=True, channels=("p_A", "p_B", "x", "z"))
-    z = np.zeros(data.n)
-    for j, s in enumerate(fsim.seg.starts):
-        z[s:s + fsim.seg.length] = full["z"][0, j]
-    dist = estimate_disturbances(data, final.params, z)
-    feats = features(data, p_S)
-    out = {"disturbance_rms": {k: float(np.sqrt(np.mean(dist[k] ** 2))) for k in TARGETS}, "terms": [],
-           "significant": False, "equation": "no term", "mapped": "", "in_library": False}
-    # --- score test of every term, in one batch
+def _candidates(feats: dict) -> list:
+    """Every (unknown input, feature) term: [((target, feature), probe scale, unit)]."""
     cands = []
     for tname in TARGETS:
         for fname, (fv, funit) in feats.items():
@@ -230,13 +203,25 @@ def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: 
             if rms == 0:
                 continue
             cands.append(((tname, fname), PROBE_RMS[tname] / rms, _unit_of(TARGETS[tname], funit)))
+    return cands
+
+
+def _rank_by_score_test(split: Split, data: Prepared, final: FitResult, calib, cands, p_S: float, out: dict):
+    """The previous route: equation-error estimate (reported) and a score test of every term on
+    simulation error. Returns (order of candidate indices, start coefficient of each)."""
+    fsim = split.fit_sim
+    full = fsim.simulate(final.params[None, :], full=True, channels=("p_A", "p_B", "x", "z"))
+    z = np.zeros(data.n)
+    for j, s in enumerate(fsim.seg.starts):
+        z[s:s + fsim.seg.length] = full["z"][0, j]
+    dist = estimate_disturbances(data, final.params, z)
+    out["disturbance_rms"] = {k: float(np.sqrt(np.mean(dist[k] ** 2))) for k in TARGETS}
     base_model = Model(final.params, tuple(calib), final.meas)
     th0 = base_model.theta_of(final.values)
     rr = evaluate(split, base_model, np.repeat(th0[None, :], len(th0) + 1, axis=0)
                   + np.vstack([np.zeros(len(th0)), 1e-2 * np.eye(len(th0))]))
     r0 = rr[0]
     Q, _ = np.linalg.qr((rr[1:] - r0).T)
-    ref = Model(final.params, (), final.meas)
     m = len(cands)
 
     def tv_all(thetas, sim):
@@ -254,20 +239,108 @@ def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: 
     num = (S_perp.T @ r_perp) ** 2
     den = np.sum(S_perp ** 2, axis=0)
     score = np.where(den > 0, num / np.where(den > 0, den, 1), 0.0) / max(float(r0 @ r0), 1e-300)
-    order = np.argsort(-score)
+    order = [int(i) for i in np.argsort(-score)]
     out["screened"] = [{"term": f"{cands[i][0][0]} ~ {cands[i][0][1]}", "score": float(score[i])} for i in order[:8]]
+    coefs = []
+    for i, (_, c, _) in enumerate(cands):
+        step = float(S_perp[:, i] @ r_perp) / den[i] if den[i] > 0 else 1.0
+        coefs.append(c * (step if step != 0 else 1.0))
+    return order, coefs, order[:3]
+
+
+def _regress_target(tname: str, ui, feats: dict, cands, data: Prepared, final: FitResult, calib,
+                    idx: np.ndarray) -> Regression:
+    """Sparse regression of one UKF estimate on its candidate features, both lagged like the estimate,
+    with the calibration nuisance; on the regression grid ``idx`` (sample indices)."""
+    st, u, tau = ui.states, np.ascontiguousarray(data.u), ui.tau[tname]
+
+    def lag(y):
+        return lag_like_estimate(np.ascontiguousarray(y, dtype=float), tau, data.dt)[idx]
+
+    lagged = {fname: lag(fv) for fname, (fv, _) in feats.items() if any(c[0] == (tname, fname) for c in cands)}
+    sens = input_sensitivity(st, u, final.params, tname)
+    nuis = calibration_nuisance(st, u, final.params, calib, tname, sens)
+    nuis = np.column_stack([lag(nuis[:, j]) for j in range(nuis.shape[1])])
+    return sparse_regression(tname, ui.est[tname][idx], 1.0 / ui.sd[tname][idx], lagged, nuis,
+                             REG_MAX_TERMS, BIC_STRONG, estimate_n_eff(len(idx), REG_STEP_S, tau[idx]))
+
+
+def _rank_by_ukf(data: Prepared, final: FitResult, calib, cands, p_S: float, out: dict):
+    """UKF unknown-input estimates, sparse-regressed on the candidate features.
+
+    Returns (candidate indices that pass the regression's BIC test, best first; the regression
+    coefficient of each candidate as a start value; candidates for a second term)."""
+    ui = estimate_unknown_inputs(data, final.params)
+    ui.states = np.ascontiguousarray(ui.states)
+    st = ui.states
+    idx = np.arange(int(round(WARMUP_S / data.dt)), data.n, max(1, int(round(REG_STEP_S / data.dt))))
+    feats = features_at(st[:, S.p_A], st[:, S.p_B], st[:, S.v], st[:, S.x], st[:, S.x_s], p_S)
+    coef = [c for _, c, _ in cands]
+    single, selected, summary = [], set(), {}
+    for tname in UI_TARGETS:
+        reg = _regress_target(tname, ui, feats, cands, data, final, calib, idx)
+        e = ui.est[tname][idx]
+        summary[tname] = {"mean": float(np.mean(e)), "rms": float(np.sqrt(np.mean(e ** 2))),
+                          "median_std": float(np.median(ui.sd[tname][idx])),
+                          "median_lag_s": float(np.median(ui.tau[tname][idx])), "n_eff": reg.n_eff,
+                          "selected": [{"feature": f, "coefficient": c} for f, c in reg.selected]}
+        selected |= {(tname, f) for f, _ in reg.selected}
+        for i, ((t, f), _, _) in enumerate(cands):
+            if t == tname and f in reg.single:
+                d, c = reg.single[f]
+                coef[i] = c if c != 0 else coef[i]
+                if d < -BIC_STRONG:
+                    single.append((d, i))
+    out["disturbance_rms"] = {k: summary[k]["rms"] for k in UI_TARGETS}
+    out["unknown_inputs"] = summary
+    single.sort()
+    order = [i for _, i in single]
+    out["screened"] = [{"term": f"{cands[i][0][0]} ~ {cands[i][0][1]}", "regression_delta_bic": float(d)}
+                       for d, i in single[:8]]
+    second = sorted((i for i, (t, _, _) in enumerate(cands) if t in selected),
+                    key=lambda i: order.index(i) if i in order else len(order))
+    return order, coef, second
+
+
+def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: float, hyps,
+                  n_fit: int = 4, max_terms: int = 2, estimator: str | None = None) -> dict:
+    """Run the generic route on the residual of ``final`` (calibrated model); JSON-able dict ('_*' keys excepted).
+
+    1. The unknown inputs Q_dA, Q_dB [m^3/s], F_d [N] are estimated (``estimator``: "ukf", the default
+       :data:`ESTIMATOR`, or "score_test", the previous equation-error + score-test route) and the
+       candidate terms (input, feature) ranked: by the sparse regression of the UKF estimates, or by a
+       score test on simulation error.
+    2. The best ``n_fit`` are fitted on simulation error (with the calibration parameters free), starting
+       from their regression coefficient; the BIC-best is kept; then a second term is tried.
+    3. ``significant``: BIC falls by more than 10, >= 5 % less squared error on both parts, and
+       >= 0.5 points of mean held-out fit (as for a library hypothesis).
+    """
+    estimator = estimator or ESTIMATOR
+    note = ""
+    if estimator == "ukf" and data.n_sub > 1:
+        # the filter steps the model at the recording's own step, which is only stable up to 1 ms
+        estimator, note = "score_test", "sampled slower than 1 kHz: the UKF route needs 1 kHz, score test used"
+    p_S = final.params[P.p_S]
+    cands = _candidates(features(data, p_S))
+    out = {"estimator": estimator, "terms": [], "significant": False, "equation": "no term", "mapped": "",
+           "in_library": False, **({"note": note} if note else {})}
+    if estimator == "ukf":
+        order, coefs, second = _rank_by_ukf(data, final, calib, cands, p_S, out)
+    elif estimator == "score_test":
+        order, coefs, second = _rank_by_score_test(split, data, final, calib, cands, p_S, out)
+    else:
+        raise ValueError(f"generic_route: estimator {estimator!r} is not 'ukf' or 'score_test'")
+    if not order:
+        return out
+    ref = Model(final.params, (), final.meas)
     ref_fit = float(np.sum(evaluate(split, ref, np.zeros((1, 0)), "fit") ** 2))
     ref_held = float(np.sum(evaluate(split, ref, np.zeros((1, 0)), "held") ** 2))
     hs = split.sim_for("held")
     ref_fits = fits(hs, hs.simulate(final.params[None, :], final.meas[None, :] if np.any(final.meas) else None), "held")
 
     def try_terms(sel):
-        coefs = []
-        for i in sel:
-            (t, c, u) = cands[i]
-            step = float(S_perp[:, i] @ r_perp) / den[i] if den[i] > 0 else 1.0
-            coefs.append(c * (step if step != 0 else 1.0))
-        model, start = _term_model(final, calib, [cands[i][0] for i in sel], coefs, [cands[i][2] for i in sel], p_S)
+        model, start = _term_model(final, calib, [cands[i][0] for i in sel], [coefs[i] for i in sel],
+                                   [cands[i][2] for i in sel], p_S)
         res = fit(split, model, [start], max_nfev=20)
         dbic = n_eff * math.log(max(res.rss_fit, 1e-300) / ref_fit) + len(sel) * math.log(n_eff)
         return dbic, res, model, sel
@@ -277,10 +350,8 @@ def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: 
         r = try_terms([int(i)])
         if best is None or r[0] < best[0]:
             best = r
-    if best is None:
-        return out
     if max_terms > 1:
-        for i in order[:3]:
+        for i in second[:3]:
             if int(i) in best[3]:
                 continue
             r = try_terms(best[3] + [int(i)])
