@@ -78,11 +78,18 @@ class UnknownInputs:
     q: dict[str, float]
 
 
+#: The filter settings this route was measured with, spelled out so that it does not follow the FDI
+#: defaults (tuned for fault detection, and changed between sessions): no calibration states (the plant
+#: vector passed in is already calibrated; a random-walk notch flow or B_eff would trade off with Q_dA,
+#: Q_dB), plain mean projection of the (pinned) leak states, and the 2e-5 rad encoder noise floor.
+ROUTE_FILTER = dict(calibrate=(), calib_noise=(), constraint="project", theta_noise_floor=2e-5)
+
+
 def filter_config(base: FilterConfig | None = None) -> FilterConfig:
     """The fdi filter with Q_dA, Q_dB as unknown-input states and the fault states pinned.
 
     F_d is already a state of the filter (its walk ``q[11]``, 1e4 N/sqrt(s) by default)."""
-    base = base or FilterConfig()
+    base = base or FilterConfig().with_(**ROUTE_FILTER)
     q, p0 = list(base.q), list(base.p0)
     for i in PINNED_STATES:
         q[i] = 0.0
