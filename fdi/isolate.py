@@ -7,10 +7,11 @@ at sample k_a:
 1. **onset estimate** k0: one past the last zero of the first alarming CUSUM statistic
    before k_a (its change-time estimate), ``ONSET_LEAD_S`` earlier, never before the end of
    the healthy baseline window;
-2. **healthy reference**: the detection filter re-run over [0, k0] with every fault
-   parameter held at its healthy nominal value (0 leak, the plant's offset; no process
-   noise, a tiny prior). Its calibration states (load mass, B_eff, notch flows) then learn
-   the nuisance without being able to trade it against a fault state. (Measured: seeding
+2. **healthy reference**: the ``calibrated`` filter (:data:`REFERENCE`, whatever filter
+   detected) run over [0, k0] with every fault parameter held at its healthy nominal value
+   (0 leak, the plant's offset; no process noise, a tiny prior). Its calibration states
+   (load mass, B_eff, notch flows) then learn the nuisance without being able to trade it
+   against a fault state. (Measured: seeding
    the bank from the *detection* filter's own state at k0 holds its pre-onset offset error,
    +0.4 % on the nominal plant, in every leak hypothesis, and a 1 L/min K_int is taken for
    offset- by thousands of nats; docs/fdi.md, "Session 6".)
@@ -42,6 +43,9 @@ from .ukf import (
     FilterOutput, param_layout, run_filter, state_scale,
 )
 
+#: The filter whose calibration states learn the nuisance before the onset (docs/fdi.md,
+#: session 4: load mass, B_eff and the four notch flows); its fault states are held.
+REFERENCE = PRESETS["calibrated"]
 #: Hypotheses of the bank: name -> the state left free (None: the healthy hypothesis).
 BANK = {"none": None, "K_int": I_KINT, "K_extA": I_KEXTA, "K_extB": I_KEXTB, "offset": I_OFFSET}
 FAULTS = tuple(h for h, j in BANK.items() if j is not None)
@@ -76,18 +80,18 @@ def margin_for(level: float = FALSE_ISOLATION_LEVEL, n_hypotheses: int = len(FAU
     return math.log((n_hypotheses - 1) * (1.0 - level) / level)
 
 
-def reference_config(detect: FilterConfig) -> FilterConfig:
-    """The healthy reference: the detection filter with every fault parameter held at its
-    healthy value (no process noise, prior std x HELD_P0_FACTOR)."""
-    q, p0 = list(detect.q), list(detect.p0)
+def reference_config(base: FilterConfig = REFERENCE) -> FilterConfig:
+    """The healthy reference: ``base`` with every fault parameter held at its healthy value
+    (no process noise, prior std x HELD_P0_FACTOR)."""
+    q, p0 = list(base.q), list(base.p0)
     for j in FAULT_IDX:
         q[j] = 0.0
         p0[j] *= HELD_P0_FACTOR
-    return detect.with_(q=tuple(q), p0=tuple(p0))
+    return base.with_(q=tuple(q), p0=tuple(p0))
 
 
-def bank_config(detect: FilterConfig) -> FilterConfig:
-    """The constrained filters: the detection filter's measurement model and model-state
+def bank_config(detect: FilterConfig = REFERENCE) -> FilterConfig:
+    """The constrained filters: the reference filter's measurement model and model-state
     noise, no calibration states (their reference values are written into the parameter
     vector), fault parameters constant (q = 0; the free one gets a prior), no divergence
     resets (a wrong hypothesis must keep its large innovations)."""
@@ -134,7 +138,7 @@ def run_reference(out: FilterOutput, rows: np.ndarray, k_end: np.ndarray) -> Fil
     L = int(max(1, np.max(k_end)))
     seg = _rows(inp, rows, np.zeros(len(rows), dtype=np.int64), np.minimum(k_end, inp.u.shape[1]), L)
     sub = replace(inp, params=inp.params[rows], **seg)
-    return run_filter(sub, reference_config(out.config))
+    return run_filter(sub, reference_config())
 
 
 @dataclass
@@ -153,7 +157,7 @@ def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndar
     """The hypothesis bank of runs ``rows`` of the detection output ``out``, run i over
     samples [k0[i], k1[i]), seeded from row i of the reference ``ref`` at k0[i]; ONE
     run_filter call for all runs and hypotheses."""
-    inp, det = out.inp, out.config
+    inp, det = out.inp, ref.config
     rows, k0, k1 = (np.asarray(a, dtype=np.int64) for a in (rows, k0, k1))
     n, H = len(rows), len(BANK)
     L = int(max(1, (k1 - k0).max()))
