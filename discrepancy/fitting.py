@@ -15,7 +15,7 @@ from scipy.optimize import least_squares
 from sam import P
 
 from .library import Free
-from .simulation import MEAS_PARAMS, SegmentSimulator
+from .simulation import MEAS_PARAMS, SIGNALS, SegmentSimulator
 
 FD_STEP = 1e-3  # forward-difference step in the scaled (log10 or fraction-of-span) parameter space
 
@@ -77,14 +77,28 @@ class Model:
 
 
 class Split:
-    """The fitting part and the held-out part: segments of one recording, or a second recording."""
+    """The fitting part and the held-out part: segments of one recording, or a second recording.
 
-    def __init__(self, fit_sim: SegmentSimulator, held_sim: SegmentSimulator | None = None):
+    ``seg_sigma`` (optional): part -> (n_segments_of_part,) residual scale of each segment. The
+    residuals of a segment are divided by it (a heteroscedastic noise model: every 1 s segment has
+    its own residual variance), see :func:`segment_scales`.
+    """
+
+    def __init__(self, fit_sim: SegmentSimulator, held_sim: SegmentSimulator | None = None,
+                 seg_sigma: dict[str, np.ndarray] | None = None):
         self.fit_sim = fit_sim
         self.held_sim = held_sim or fit_sim
+        self.seg_sigma = seg_sigma
 
     def sim_for(self, part: str) -> SegmentSimulator:
         return self.fit_sim if part == "fit" else self.held_sim
+
+    def weighted(self, seg_sigma: dict[str, np.ndarray]) -> "Split":
+        """The same split with per-segment residual scales (the simulators are shared)."""
+        return Split(self.fit_sim, self.held_sim, seg_sigma)
+
+    def n_segments(self, part: str) -> int:
+        return int(np.sum(self.sim_for(part).segment_mask(part)))
 
 
 def evaluate(split: Split, model: Model, thetas: np.ndarray, part: str = "fit") -> np.ndarray:
@@ -95,7 +109,61 @@ def evaluate(split: Split, model: Model, thetas: np.ndarray, part: str = "fit") 
     tv = model.tv(np.atleast_2d(thetas), sim) if model.tv is not None else None
     out = sim.simulate(params, use_meas, time_varying=tv)
     r = sim.residuals(out, part)
+    if split.seg_sigma is not None:
+        r = r / _per_sample(split.seg_sigma[part], r.shape[1])[None, :]
     return np.nan_to_num(r, nan=1e3, posinf=1e3, neginf=-1e3)
+
+
+def _per_sample(seg_values: np.ndarray, n_res: int) -> np.ndarray:
+    """(n_res,) per-residual values from (n_seg,) per-segment values; residuals are laid out as
+    signal-major blocks of (n_seg, n_eval) (see :meth:`SegmentSimulator.residuals`)."""
+    n_seg = len(seg_values)
+    n_eval = n_res // (len(SIGNALS) * n_seg)
+    return np.tile(np.repeat(seg_values, n_eval), len(SIGNALS))
+
+
+def segment_rss(r: np.ndarray, n_seg: int) -> np.ndarray:
+    """(n_seg,) squared error of each segment from one residual vector (n_res,)."""
+    return np.sum(r.reshape(len(SIGNALS), n_seg, -1) ** 2, axis=(0, 2))
+
+
+def segment_delta_bic(rss_new: np.ndarray, rss_ref: np.ndarray, n_seg_eff: float, k: int) -> float:
+    """BIC change of a model over a reference with one residual variance per segment (profiled out).
+
+    -2 log-likelihood ratio of a Gaussian whose variance differs between segments and is estimated in
+    each: n_seg_eff sum_s log(RSS_s(new) / RSS_s(ref)); plus k log(n_seg_eff n_seg) for k extra parameters.
+
+    Args:
+        rss_new, rss_ref: (n_seg,) squared error of each segment under the model and the reference.
+        n_seg_eff: effective (independent) samples in one segment.
+        k: number of extra free parameters.
+    """
+    ratio = np.maximum(rss_new, 1e-300) / np.maximum(rss_ref, 1e-300)
+    n = max(n_seg_eff * len(rss_new), 10.0)
+    return float(n_seg_eff * np.sum(np.log(ratio)) + k * np.log(n))
+
+
+#: Floor of a segment's residual scale, as a multiple of the median segment's: a segment is never
+#: weighted above a typical one (a segment that happens to fit well carries no more information than a
+#: typical one, its small residual is partly luck), only segments whose residual is larger than typical
+#: are down-weighted (their variance is larger: start-up transients, stroke ends, stick-slip).
+SEGMENT_SIGMA_FLOOR = 1.0
+
+
+def segment_scales(split: Split, model: Model, theta: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-segment residual scales (RMS of the weighted residual) of a reference fit, part -> (n_seg,).
+
+    A feasible generalised-least-squares step: the variance of each segment is estimated once from the
+    reference model, then candidate models are compared under it. The scale is floored at
+    :data:`SEGMENT_SIGMA_FLOOR` times the median over the part's segments.
+    """
+    out = {}
+    for part in ("fit", "held"):
+        r = evaluate(split, model, theta[None, :], part)[0]
+        n_seg = split.n_segments(part)
+        rms = np.sqrt(segment_rss(r, n_seg) / (r.size / n_seg))
+        out[part] = np.maximum(rms, SEGMENT_SIGMA_FLOOR * np.median(rms))
+    return out
 
 
 def fit(sim: Split, model: Model, starts: list[np.ndarray], max_nfev: int = 40) -> FitResult:

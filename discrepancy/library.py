@@ -55,6 +55,7 @@ class Hypothesis:
     starts: tuple[dict[str, float], ...] = field(default_factory=tuple)  # grid of starting values
     probe: dict[str, float] = field(default_factory=dict)  # a small realistic magnitude for the signature
     nominal: dict[str, float] = field(default_factory=dict)  # the plant's value, for effects that change one
+    alike: str = ""  # other physics with the same signature, that the data cannot tell apart from this one
 
     def summary(self, values: dict[str, float]) -> str:
         parts = []
@@ -106,6 +107,8 @@ def library(plant: Plant) -> tuple[Hypothesis, ...]:
             "pressure transients lag and ring less at low chamber pressure; worse in the low-pressure chamber",
             starts=tuple({"air_fraction": a} for a in (1e-4, 1e-3, 5e-3, 2e-2)),
             probe={"air_fraction": 2e-3},
+            alike="any compliance that falls with pressure, e.g. a hose that stiffens as it is pressurised; "
+                  "the library's hose term is pressure-independent, so such a hose is named entrained air",
         ),
         Hypothesis(
             "hose_compliance", "hose or line compliance",
@@ -183,6 +186,7 @@ def library(plant: Plant) -> tuple[Hypothesis, ...]:
             "every measured signal trails the simulation in fast transients",
             starts=tuple({"tau_sensor": t} for t in (1e-3, 5e-3, 2e-2)),
             probe={"tau_sensor": 5e-3},
+            alike="any sensor or filter dynamics; a higher-order filter lies between a lag and a delay",
         ),
         Hypothesis(
             "time_delay", "time delay (transport / logging)",
@@ -191,6 +195,7 @@ def library(plant: Plant) -> tuple[Hypothesis, ...]:
             "every signal is shifted in time; largest mismatch at the fastest input changes",
             starts=tuple({"delay_sensor": t} for t in (2e-3, 1e-2, 4e-2)),
             probe={"delay_sensor": 5e-3},
+            alike="a higher-order sensor or filter lag (two cascaded lags look like a delay plus a shorter lag)",
         ),
     )
 

@@ -35,6 +35,7 @@ def _candidate_dict(c, rank: int) -> dict:
                      "error_reduction_fit": c.gain_fit, "error_reduction_held_out": c.gain_held},
         "fitted": c.effect_values(), "fitted_text": c.summary(), "at_bounds": c.result.at_bounds,
         "where_it_shows": "; ".join(h.shows for h in c.hypothesis),
+        "looks_alike": [h.alike for h in c.hypothesis if h.alike],
     }
 
 
@@ -99,7 +100,9 @@ def to_markdown(report) -> str:
     L += ["## Hypotheses, ranked", "",
           "Evidence: signature match (0-1, score test of the effect's sensitivity against the residual), "
           f"BIC change (effective samples {report.n_eff:.0f}; below -10 is strong), error reduction on the "
-          "fitting part and held out. Accepted = strong BIC and at least 5 % less error on both parts.", "",
+          "fitting part and held out. Accepted = strong BIC, at least 5 % less error on both parts and "
+          "+0.5 points of held-out fit. A second effect is accepted on top of the first by strong BIC on "
+          "the fitting part and on the held-out part, each 1 s segment with its own residual variance.", "",
           "| rank | effect | accepted | signature | dBIC | error -% fit | error -% held out | fitted |",
           "|---|---|---|---|---|---|---|---|"]
     for i, c in enumerate(report.ranked[:3]):
@@ -110,8 +113,10 @@ def to_markdown(report) -> str:
         L.append(f"- *{c.title}* shows as: {c.hypothesis[0].shows}.")
     if report.chosen and len(report.chosen[0].hypothesis) > 1:
         c = report.chosen[0]
-        L += ["", f"Two effects together: **{c.title}** ({c.summary()}), dBIC {c.delta_bic:.0f} over the first alone, "
-              f"held-out error -{100 * c.gain_held:.0f} %."]
+        L += ["", f"Two effects together: **{c.title}** ({c.summary()}), dBIC {c.delta_bic:.0f} over the first alone "
+              f"(held out {c.delta_bic_held:.0f}), held-out error -{100 * c.gain_held:.0f} %."]
+    for h in (h for c in report.chosen for h in c.hypothesis if h.alike):
+        L.append(f"- *{h.title}* looks alike in the data: {h.alike}.")
     g = report.generic
     L += ["", "## Generic route (unknown inputs, sparse regression)", ""]
     if g:
