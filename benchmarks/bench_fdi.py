@@ -76,22 +76,17 @@ def _bench_isolation(plant, runs) -> None:
     d = replay_once()
     print(f"replay with likelihood isolation ({d.status}: {d.isolated}), 4 s at 1 kHz: {br:.3f} s "
           f"-> {4.0 / br:.0f}x real time")
-    mc = make_batch(plant, 100, 2, fault="K_extA", size=0.5)
-
-    def tune_chunk():
-        out = run_filter(mc.inp)
-        st = statistics(out, th)
-        t0 = time.perf_counter()
-        decs = isolate.isolate(out, st, th.h, 1500, isolate.margin_for(), horizon_s=isolate.DECISION_HORIZON_S)
-        return time.perf_counter() - t0, len(decs)
-
-    tune_chunk()
-    t0 = time.perf_counter()
-    t_iso, n_alarmed = tune_chunk()
-    tt = time.perf_counter() - t0
-    print(f"100 faulty recordings ({n_alarmed} alarmed): filter + CUSUM {tt - t_iso:.2f} s, isolation {t_iso:.2f} s "
-          f"= {tt / 100 * 1e3:.0f} ms per run -> 1000 runs ~ {tt * 10:.0f} s on one core (all alarmed; healthy "
-          f"runs without an alarm cost only the filter)")
+    from fdi.tune import _chunk_job, _jobs
+    jobs = _jobs(230)  # the tune of docs/fdi.md: 230 healthy + 46 runs per fault case
+    n_h = sum(j[3] for j in jobs if j[1] is None)
+    n_f = sum(j[3] for j in jobs if j[1] is not None)
+    _chunk_job(plant, th, "K_extA", 0.5, 4, 2)  # compile / load the cache
+    th_ = _timed(lambda: _chunk_job(plant, th, None, 0.0, 50, 1000))
+    tf_ = _timed(lambda: _chunk_job(plant, th, "K_int", 0.25, 50, 500_000))
+    per_1000 = (n_h * th_ + n_f * tf_) / 50 / (n_h + n_f) * 1000
+    print(f"tune work per run (simulation, filter, CUSUM, isolation; one core): healthy {th_ / 50 * 1e3:.0f} ms, "
+          f"faulty {tf_ / 50 * 1e3:.0f} ms -> 1000 runs of the tune's mix ~ {per_1000:.0f} s on one core, "
+          f"~ {per_1000 / 2:.0f} s on 2 cores")
 
 
 def _timed(f) -> float:

@@ -336,17 +336,19 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
 
 def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict, decision=None):
     """Status, isolated, size, confidence, isolation time, likelihoods and note of run b from
-    the likelihood bank (fdi.isolate): the bank runs over the whole record after the alarm."""
+    the likelihood bank (fdi.isolate), run up to DECISION_WINDOW_S after the first alarm."""
     from . import isolate
 
     dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
     margin = isolate.margin_for(th.false_isolation_level)
     if decision is None:
         k_ready = int(round((th.warmup_s + th.baseline_s) / dt))
-        decision = isolate.isolate(out, stats, th.h, k_ready, margin, rows=[b])[b]
+        decision = isolate.isolate(out, stats, th.h, k_ready, margin, horizon_s=isolate.DECISION_WINDOW_S,
+                                   rows=[b])[b]
     d = decision
     name = isolate.hypothesis_name(d.hypothesis or (d.candidates[0] if d.candidates else "offset"), d.size)
-    m, s = d.size, d.size_sd
+    # +-2 sigma band: the bank filter's std and the healthy spread from model uncertainty
+    m, s = d.size, math.hypot(d.size_sd, th.nuisance_sd.get(name.rstrip("+-"), 0.0))
     if name.startswith("K_"):
         size = {"value": float(leak_lpm(m)), "minus_2sigma": float(leak_lpm(m - 2 * s)),
                 "plus_2sigma": float(leak_lpm(m + 2 * s)), "unit": "L/min at 10 MPa", "K_m3_per_s_sqrtPa": m}

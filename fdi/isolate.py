@@ -24,7 +24,8 @@ at sample k_a:
    log-likelihood of filter H, the fault is isolated as H at the first k >= k_a at which
    L_H(k) exceeds every other fault hypothesis by ``margin`` nats (causal: data up to k).
    Otherwise "not isolable", with the hypotheses within the margin of the best.
-5. **size**: the free parameter of the isolated hypothesis' filter, minus its healthy value.
+5. **size**: the free parameter of the isolated hypothesis' filter at the end of its window
+   (the estimate of a constant from all the window's data), minus its healthy value.
 
 The margin is not fitted: with equal prior probabilities, the posterior probability of the
 best of n hypotheses is at least 1 / (1 + (n - 1) e^-margin); :func:`margin_for` gives the
@@ -63,14 +64,13 @@ FROZEN_VAR = 1e-12
 #: needs a few tenths of a second to leave 0 after a step (the filter's response), and an
 #: early start only adds healthy samples, the same for every hypothesis.
 ONSET_LEAD_S = 0.25
-#: s: tune decides at most this long after the alarm (the target counts 1 s from the onset,
-#: and the alarm is after the onset); replay uses the whole record.
-DECISION_HORIZON_S = 1.0
+#: s: the bank runs at most this long after the alarm (replay): the isolation target counts
+#: 1 s, the size is read over the last SIZE_WINDOW_S of it, and on a long recording a bank run
+#: to the end would cost 5 filters for the rest of the record.
+DECISION_WINDOW_S = 1.0
 #: Stated false-isolation level: the probability, under the model, that the isolated
 #: hypothesis is not the one that produced the data.
 FALSE_ISOLATION_LEVEL = 0.01
-#: s: the size is the mean of the isolated filter's estimate over the last this many seconds
-SIZE_WINDOW_S = 0.5
 
 
 def margin_for(level: float = FALSE_ISOLATION_LEVEL, n_hypotheses: int = len(FAULTS)) -> float:
@@ -151,15 +151,19 @@ class BankResult:
     free_sd: np.ndarray  #: (n, H, L)
     healthy: np.ndarray  #: (n, H) healthy value of each hypothesis' free parameter (SI)
     n_valid: np.ndarray  #: (n,) samples inside each run's window
+    names: tuple = tuple(BANK)  #: the hypotheses, in the order of axis 1
 
 
-def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndarray, k1: np.ndarray) -> BankResult:
+def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndarray, k1: np.ndarray,
+             hypotheses: tuple = tuple(BANK), ref_rows: np.ndarray | None = None) -> BankResult:
     """The hypothesis bank of runs ``rows`` of the detection output ``out``, run i over
-    samples [k0[i], k1[i]), seeded from row i of the reference ``ref`` at k0[i]; ONE
-    run_filter call for all runs and hypotheses."""
+    samples [k0[i], k1[i]), seeded from row ``ref_rows[i]`` (default i) of the reference
+    ``ref`` at k0[i]; ONE run_filter call for all runs and ``hypotheses`` (names of BANK)."""
     inp, det = out.inp, ref.config
     rows, k0, k1 = (np.asarray(a, dtype=np.int64) for a in (rows, k0, k1))
-    n, H = len(rows), len(BANK)
+    ref_rows = np.arange(len(rows)) if ref_rows is None else np.asarray(ref_rows)
+    n, H = len(rows), len(hypotheses)
+    frees = [BANK[name] for name in hypotheses]
     L = int(max(1, (k1 - k0).max()))
     cols, rel = param_layout(det)
     sc = state_scale(det)[:N_AUG]
@@ -168,15 +172,15 @@ def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndar
     z0 = np.empty((n, N_AUG))
     var = np.empty((n, N_AUG))
     for i, (b, ka) in enumerate(zip(rows, k0)):
-        mean = ref.mean[i, ka]
+        mean = ref.mean[ref_rows[i], ka]
         params[i] = inp.params[b]
         for a in range(len(cols)):  # calibration states -> the parameter vector
             if rel[a]:
                 params[i, cols[a]] = inp.params[b, cols[a]] * (1.0 + max(mean[N_MODEL + a], -0.95))
         z0[i] = mean[:N_AUG] / sc
-        var[i] = (ref.std[i, ka, :N_AUG] / sc) ** 2
+        var[i] = (ref.std[ref_rows[i], ka, :N_AUG] / sc) ** 2
     P0 = np.zeros((n, H, N_AUG, N_AUG))
-    for h, free in enumerate(BANK.values()):
+    for h, free in enumerate(frees):
         d = var.copy()
         d[:, list(FAULT_IDX)] = FROZEN_VAR
         if free is not None:
@@ -191,11 +195,12 @@ def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndar
     free_est = np.full((n, H, L), np.nan)
     free_sd = np.full((n, H, L), np.nan)
     healthy = np.full((n, H), np.nan)
-    for h, j in enumerate(BANK.values()):
+    for h, j in enumerate(frees):
         if j is not None:
             free_est[:, h], free_sd[:, h] = mean[:, h, :, j], std[:, h, :, j]
             healthy[:, h] = z0[:, j] * sc[j]
-    return BankResult(k0=k0, loglik=loglik, free=free_est, free_sd=free_sd, healthy=healthy, n_valid=k1 - k0)
+    return BankResult(k0=k0, loglik=loglik, free=free_est, free_sd=free_sd, healthy=healthy, n_valid=k1 - k0,
+                      names=tuple(hypotheses))
 
 
 @dataclass
@@ -212,10 +217,10 @@ class Decision:
     size_sd: float = float("nan")
 
 
-def decide(bank: BankResult, i: int, k_alarm: int, margin: float, dt: float) -> Decision:
+def decide(bank: BankResult, i: int, k_alarm: int, margin: float) -> Decision:
     """First sample k >= k_alarm at which the best fault hypothesis of bank run i beats every
     other fault hypothesis by ``margin`` nats (causal: L_H(k) uses samples up to k)."""
-    names = list(BANK)
+    names = list(bank.names)
     fi = [names.index(h) for h in FAULTS]
     nv = int(bank.n_valid[i])
     ll = bank.loglik[i][fi, :nv]  # (F, nv)
@@ -226,11 +231,11 @@ def decide(bank: BankResult, i: int, k_alarm: int, margin: float, dt: float) -> 
     best = int(np.argmax(ll[:, at]))
     llr = {h: float(ll[q, at] - ll[best, at]) for q, h in enumerate(FAULTS)}
     llr_none = float(ll[best, at] - bank.loglik[i, names.index("none"), at])
-    # size: the best filter's estimate at the end of its window, minus its healthy value
+    # size: the best filter's estimate of its constant parameter from all the window's data
+    # (its last sample), minus the healthy value
     hb = fi[best]
-    w = slice(max(0, nv - int(round(SIZE_WINDOW_S / dt))), nv)
-    size = float(np.mean(bank.free[i, hb, w]) - bank.healthy[i, hb])
-    size_sd = float(np.mean(bank.free_sd[i, hb, w]))
+    size = float(bank.free[i, hb, nv - 1] - bank.healthy[i, hb])
+    size_sd = float(bank.free_sd[i, hb, nv - 1])
     if len(ok):
         return Decision(FAULTS[best], int(bank.k0[i]) + at, [FAULTS[best]], llr, llr_none, int(bank.k0[i]), size, size_sd)
     cands = [h for h in FAULTS if llr[h] > -margin]
@@ -250,10 +255,13 @@ def first_alarms(stats: dict, h: dict) -> tuple[np.ndarray, list]:
 
 
 def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float,
-            horizon_s: float | None = None, rows=None) -> dict:
-    """Run the reference and the bank for every run (of ``rows``) that alarmed, in one
-    batched call each; returns run -> Decision. The bank of a run covers [k0, end of the
-    record) or, with ``horizon_s``, [k0, alarm + horizon_s]."""
+            horizon_s: float | None = None, rows=None, k_stop: int | None = None, size: bool = True) -> dict:
+    """Run the reference and the bank for every run (of ``rows``) that alarmed, batched;
+    returns run -> Decision. A run's window is [k0, end of the record) or, with ``horizon_s``,
+    [k0, alarm + horizon_s], never beyond ``k_stop``. In stages, so that the five filters run
+    only as long as a decision needs them: (1) the bank up to the alarm, decided there; (2) for
+    runs not yet decided, the bank over the whole window; (3) with ``size``, the decided
+    hypothesis' filter alone over the whole window, whose last estimate is the size."""
     dt = float(out.t[1] - out.t[0])
     T = out.mean.shape[1]
     k_alarm, who = first_alarms(stats, h)
@@ -261,14 +269,33 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     rows = np.array([b for b in rows if k_alarm[b] >= 0], dtype=np.int64)
     if not len(rows):
         return {}
+    ka = k_alarm[rows]
     k0 = np.array([onset_index(stats[who[b]][b], int(k_alarm[b]), k_ready, dt) for b in rows], dtype=np.int64)
     k1 = np.full(len(rows), T, dtype=np.int64)
     if horizon_s is not None:
-        k1 = np.minimum(T, k_alarm[rows] + int(round(horizon_s / dt)) + 1)
+        k1 = np.minimum(T, ka + int(round(horizon_s / dt)) + 1)
+    if k_stop is not None:
+        k1 = np.minimum(k1, k_stop)
     k1 = np.maximum(k1, k0 + 1)
     ref = run_reference(out, rows, k0 + 1)
-    bank = run_bank(out, ref, rows, k0, k1)
-    return {int(b): decide(bank, i, int(k_alarm[b]), margin, dt) for i, b in enumerate(rows)}
+    k_a1 = np.minimum(ka + 1, k1)  # stage 1: up to and including the alarm
+    bank = run_bank(out, ref, rows, k0, k_a1)
+    decs = [decide(bank, i, int(ka[i]), margin) for i in range(len(rows))]
+    late = np.array([i for i, d in enumerate(decs) if d.hypothesis is None and k1[i] > k_a1[i]], dtype=np.int64)
+    if len(late):  # stage 2: the undecided runs over their whole window
+        bank2 = run_bank(out, ref, rows[late], k0[late], k1[late], ref_rows=late)
+        for q, i in enumerate(late):
+            decs[i] = decide(bank2, q, int(ka[i]), margin)
+    if size:  # stage 3: the decided hypothesis alone over the whole window
+        for name in FAULTS:
+            sel = np.array([i for i, d in enumerate(decs) if d.hypothesis == name and k1[i] > k_a1[i]], dtype=np.int64)
+            if len(sel):
+                one = run_bank(out, ref, rows[sel], k0[sel], k1[sel], hypotheses=(name,), ref_rows=sel)
+                for q, i in enumerate(sel):
+                    nv = int(one.n_valid[q])
+                    decs[i].size = float(one.free[q, 0, nv - 1] - one.healthy[q, 0])
+                    decs[i].size_sd = float(one.free_sd[q, 0, nv - 1])
+    return {int(b): decs[i] for i, b in enumerate(rows)}
 
 
 def hypothesis_name(param: str, change: float) -> str:

@@ -148,6 +148,8 @@ def _describe(diagnosis) -> str:
             parts.append(f"{name} {size['value']:.3g} {size['unit']}")
     if diagnosis.detection_time_s is not None:
         parts.append(f"alarm at {diagnosis.detection_time_s:.2f} s")
+    if getattr(diagnosis, "isolation_time_s", None) is not None:
+        parts.append(f"isolated by likelihood at {diagnosis.isolation_time_s:.2f} s")
     return ", ".join(parts)
 
 

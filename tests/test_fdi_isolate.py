@@ -56,7 +56,7 @@ def test_bank_isolates_and_sizes_each_single_fault(bank_runs):
     margin = iso.margin_for()
     k_alarm = int(round((ONSET_S + 0.5) / DT))
     for i, (_, _, expect, size) in enumerate(CASES):
-        d = iso.decide(bank, i, k_alarm, margin, DT)
+        d = iso.decide(bank, i, k_alarm, margin)
         assert d.hypothesis == expect, (i, d.llr)
         assert k_alarm <= d.index < k1[i]
         assert all(v <= -margin for h, v in d.llr.items() if h != expect)
@@ -73,11 +73,11 @@ def test_bank_decision_is_causal(bank_runs):
     out, ref, rows, k0, k1, bank = bank_runs
     margin = iso.margin_for()
     k_alarm = int(round((ONSET_S + 0.5) / DT))
-    full = [iso.decide(bank, i, k_alarm, margin, DT) for i in range(len(rows))]
+    full = [iso.decide(bank, i, k_alarm, margin) for i in range(len(rows))]
     cut = np.array([d.index + 1 for d in full])
     short = iso.run_bank(out, ref, rows, k0, cut)
     for i, d in enumerate(full):
-        s = iso.decide(short, i, k_alarm, margin, DT)
+        s = iso.decide(short, i, k_alarm, margin)
         assert (s.hypothesis, s.index) == (d.hypothesis, d.index)
         assert short.loglik[i, :, cut[i] - k0[i] - 1] == pytest.approx(bank.loglik[i, :, cut[i] - k0[i] - 1], rel=1e-12)
 
@@ -95,3 +95,26 @@ def test_reference_holds_the_faults_and_learns_the_nuisance(bank_runs):
     assert np.max(np.abs(est - p[P.offset])) < 1e-6
     mL, _ = ref.estimate("c_m_L")
     assert np.std(mL[:, k0[0] // 2:]) > 1e-4
+
+
+def test_staged_isolation_equals_one_bank_over_the_whole_window(bank_runs):
+    """isolate() runs the five filters only up to the alarm, the rest only where undecided,
+    and the decided hypothesis alone for the size: the decisions and sizes equal those of one
+    bank over the whole window."""
+    out, ref, rows, k0, k1, bank = bank_runs
+    T = out.mean.shape[1]
+    t = out.t
+    g = np.where(t > ONSET_S, (t - ONSET_S) / 0.5, 0.0)  # a CUSUM crossing h = 1 at onset + 0.5 s
+    stats = {"K_int": np.tile(g, (len(rows), 1))}
+    k_end = int(round((ONSET_S + 1.5) / DT))
+    margin = iso.margin_for()
+    decs = iso.isolate(out, stats, {"K_int": 1.0}, int(1.5 / DT), margin, k_stop=k_end)
+    k_alarm = int(np.argmax(g > 1.0))
+    kk0 = np.array([decs[i].k0 for i in range(len(rows))])
+    assert np.all(kk0 == kk0[0]) and abs(kk0[0] * DT - (ONSET_S - iso.ONSET_LEAD_S)) < 2 * DT
+    full = iso.run_bank(out, iso.run_reference(out, rows, kk0 + 1), rows, kk0, np.full(len(rows), k_end))
+    for i in range(len(rows)):
+        d = iso.decide(full, i, k_alarm, margin)
+        assert (decs[i].hypothesis, decs[i].index) == (d.hypothesis, d.index)
+        assert decs[i].size == pytest.approx(d.size, rel=1e-9, abs=1e-15)
+    assert k_end < T
