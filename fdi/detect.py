@@ -302,7 +302,8 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
     iso_time, lik = None, {}
     use_bank = th.isolation == "likelihood" and names and out.inp is not None
     if use_bank:
-        status, isolated, size, conf, iso_time, lik, note = _likelihood_isolation(out, th, b, stats, decision)
+        status, isolated, size, conf, iso_time, lik, note = _likelihood_isolation(out, th, b, stats, decision,
+                                                                                  baseline is None)
     elif not names:
         if nis_time is not None:
             status, isolated = "fault, not isolable", []
@@ -334,7 +335,8 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
     )
 
 
-def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict, decision=None):
+def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict, decision=None,
+                          own_baseline: bool = True):
     """Status, isolated, size, confidence, isolation time, likelihoods and note of run b from
     the likelihood bank (fdi.isolate), run up to DECISION_WINDOW_S after the first alarm."""
     from . import isolate
@@ -342,7 +344,8 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
     dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
     margin = isolate.margin_for(th.false_isolation_level)
     if decision is None:
-        k_ready = int(round((th.warmup_s + th.baseline_s) / dt))
+        # the change test is armed after the baseline window (own baseline) or the warm-up
+        k_ready = int(round((th.warmup_s + (th.baseline_s if own_baseline else 0.0)) / dt))
         decision = isolate.isolate(out, stats, th.h, k_ready, margin, horizon_s=isolate.DECISION_WINDOW_S,
                                    rows=[b])[b]
     d = decision

@@ -107,10 +107,11 @@ def bank_config(detect: FilterConfig = REFERENCE) -> FilterConfig:
 
 def onset_index(g: np.ndarray, k_alarm: int, k_ready: int, dt: float) -> int:
     """Change-time estimate of a CUSUM g (T,) that alarmed at k_alarm: one past its last
-    zero before the alarm, minus ONSET_LEAD_S, not before k_ready."""
+    zero before the alarm, minus ONSET_LEAD_S, not before k_ready (the end of the healthy
+    baseline) and never after the alarm."""
     zeros = np.flatnonzero(g[:k_alarm + 1] <= 0.0)
     k = zeros[-1] + 1 if len(zeros) else 0
-    return int(max(k_ready, min(k_alarm, k - int(round(ONSET_LEAD_S / dt)))))
+    return int(min(k_alarm, max(k_ready, k - int(round(ONSET_LEAD_S / dt)))))
 
 
 def _rows(inp, rows: np.ndarray, k0: int, k1: np.ndarray, L: int):

@@ -118,3 +118,15 @@ def test_staged_isolation_equals_one_bank_over_the_whole_window(bank_runs):
         assert (decs[i].hypothesis, decs[i].index) == (d.hypothesis, d.index)
         assert decs[i].size == pytest.approx(d.size, rel=1e-9, abs=1e-15)
     assert k_end < T
+
+
+def test_onset_estimate_is_never_after_the_alarm():
+    """The change-time estimate: one past the CUSUM's last zero before the alarm, ONSET_LEAD_S
+    earlier, not before the baseline's end, and never after the alarm (an alarm before the
+    baseline's end, possible with a reference baseline, starts the bank at the alarm)."""
+    g = np.zeros(3000)
+    g[2001:] = np.linspace(0.005, 5.0, 999)  # last zero at 2000
+    lead = int(round(iso.ONSET_LEAD_S / DT))
+    assert iso.onset_index(g, 2500, 1500, DT) == 2001 - lead
+    assert iso.onset_index(g, 2500, 1900, DT) == 1900
+    assert iso.onset_index(g, 1200, 1500, DT) == 1200
