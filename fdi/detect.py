@@ -24,6 +24,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, FilterOutput, leak_lpm
@@ -185,15 +186,24 @@ def residuals(out: FilterOutput, th: "Thresholds | None" = None, baseline=None) 
 
 def cusum(r: np.ndarray, drift: float, dt: float, warmup: int = 0, active: np.ndarray | None = None) -> np.ndarray:
     """Continuous-time one-sided CUSUM of r (B, T) [sigma s]; where ``active`` is False
-    (a regime in which the residual does not vote) the statistic is held."""
-    g = np.zeros_like(r)
-    acc = np.zeros(r.shape[0])
+    (a regime in which the residual does not vote) the statistic is held:
+    g_k = max(0, g_(k-1) + (r_k - drift) dt) for k >= warmup, g = 0 before."""
     inc = np.nan_to_num(r - drift, nan=-drift) * dt
     if active is not None:
         inc = np.where(active, inc, 0.0)
-    for k in range(r.shape[1]):
-        acc = np.maximum(0.0, acc + inc[:, k]) if k >= warmup else acc
-        g[:, k] = acc
+    return _cusum_recursion(np.ascontiguousarray(inc, dtype=float), int(warmup))
+
+
+@numba.njit(cache=True)
+def _cusum_recursion(inc, warmup):
+    """g[:, k] = max(0, g[:, k-1] + inc[:, k]) from k = warmup on (0 before)."""
+    B, T = inc.shape
+    g = np.zeros((B, T))
+    for b in range(B):
+        acc = 0.0
+        for k in range(warmup, T):
+            acc = max(0.0, acc + inc[b, k])
+            g[b, k] = acc
     return g
 
 
@@ -223,14 +233,11 @@ def nis_alarm(out: FilterOutput, th: Thresholds) -> np.ndarray:
     warm = int(round(th.warmup_s / dt))
     hi = out.nis > th.nis_limit
     hi[:, :warm] = False
-    # run length of consecutive high samples
-    run = np.zeros(hi.shape[0], dtype=int)
-    first = np.full(hi.shape[0], -1)
-    for k in range(hi.shape[1]):
-        run = np.where(hi[:, k], run + 1, 0)
-        newly = (run >= hold) & (first < 0)
-        first[newly] = k
-    return first
+    # run length of consecutive high samples: k minus the last low sample at or before k
+    k = np.arange(hi.shape[1])
+    last_low = np.maximum.accumulate(np.where(hi, -1, k[None, :]), axis=1)
+    long_run = (k[None, :] - last_low) >= hold
+    return np.where(long_run.any(axis=1), np.argmax(long_run, axis=1), -1)
 
 
 @dataclass

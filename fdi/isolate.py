@@ -139,7 +139,7 @@ def run_reference(out: FilterOutput, rows: np.ndarray, k_end: np.ndarray) -> Fil
     L = int(max(1, np.max(k_end)))
     seg = _rows(inp, rows, np.zeros(len(rows), dtype=np.int64), np.minimum(k_end, inp.u.shape[1]), L)
     sub = replace(inp, params=inp.params[rows], **seg)
-    return run_filter(sub, reference_config())
+    return run_filter(sub, reference_config(), n_steps=np.minimum(k_end, inp.u.shape[1]))
 
 
 @dataclass
@@ -189,8 +189,9 @@ def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndar
         P0[:, h] = np.einsum("bi,ij->bij", d, np.eye(N_AUG))
     rep = lambda a: None if a is None else np.repeat(a, H, axis=0)  # noqa: E731  run-major, hypothesis-minor
     bank_inp = replace(inp, **{k: rep(v) for k, v in seg.items()}, params=rep(params))
-    res = run_filter(bank_inp, bank_config(det), z0=rep(z0), P0=P0.reshape(n * H, N_AUG, N_AUG))
-    loglik = np.cumsum(res.ll, axis=1).reshape(n, H, L)
+    res = run_filter(bank_inp, bank_config(det), z0=rep(z0), P0=P0.reshape(n * H, N_AUG, N_AUG),
+                     n_steps=rep(k1 - k0))  # each run only over its own window
+    loglik = np.cumsum(np.nan_to_num(res.ll), axis=1).reshape(n, H, L)
     mean = res.mean.reshape(n, H, L, -1)
     std = res.std.reshape(n, H, L, -1)
     free_est = np.full((n, H, L), np.nan)

@@ -394,7 +394,7 @@ def _truncate_leaks(z, Pm, shrink_cov, min_mass):
 def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind, Wm, Wc, lam,
          clip_leaks, project_mean, project_internal, constraint_mode, truncate_cov, truncate_min_mass,
          freeze_k, freeze_mask, freeze_sd, symmetrise, nis_alpha, nis_limit, jitter, dt,
-         out_z, out_sd, out_nu, out_nis, counts, out_ll):
+         out_z, out_sd, out_nu, out_nis, counts, out_ll, n_steps):
     """Run B filters over T samples.
 
     z0 (B,n) scaled initial means; P0 (B,n,n); Qd (n,n) scaled process noise per
@@ -406,7 +406,10 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     normalised innovations (NaN where not measured); out_nis (B,T) weighted NIS;
     counts (B,4): [nan samples, jitter events, covariance resets, state resets];
     out_ll (B,T) innovation log-likelihood of each sample in scaled units,
-    log N(nu; 0, S) = -(nu^T S^-1 nu + log det S + m log 2 pi) / 2 (0 where nothing was measured).
+    log N(nu; 0, S) = -(nu^T S^-1 nu + log det S + m log 2 pi) / 2 (0 where nothing was measured);
+    n_steps (B,) samples to filter per run, NON-INCREASING in b: from sample n_steps[b] on, run b
+    is no longer propagated (its outputs are left as given), so that runs of different lengths
+    padded into one batch cost only their own length (the active runs are a prefix of the batch).
     """
     B, n = z0.shape
     T = u.shape[1]
@@ -433,7 +436,12 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     col = np.empty(m)
     kcol = np.empty(m)
     Qd = Qd.copy()
+    nA = B  # active runs: b < nA (n_steps is non-increasing)
     for k in range(T):
+        while nA > 0 and n_steps[nA - 1] <= k:
+            nA -= 1
+        if nA == 0:
+            break
         if k == freeze_k:  # calibration states become known constants from here on
             for j in range(n):
                 if freeze_mask[j]:
@@ -454,7 +462,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                         Qd[l, j] = 0.0
         # ---------------- predict (from the posterior at k-1, with u[k-1])
         if k > 0:
-            for b in range(B):
+            for b in range(nA):
                 _draw_sigma_points(Pm[b], P0[b], z[b], n + lam, jitter, L, sig[b], counts[b])
                 for i in range(ns):
                     r = b * ns + i
@@ -471,8 +479,9 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                     ps = pS[b, k - 1]
                     if ps == ps:  # measured supply pressure is an input
                         params[r, P_S_COL] = ps
-            new, _flags = step_batch(states, uu, params, dt)
-            for b in range(B):
+            na = nA * ns
+            new, _flags = step_batch(states[:na], uu[:na], params[:na], dt)
+            for b in range(nA):
                 for i in range(ns):
                     r = b * ns + i
                     for j in range(N_MODEL):
@@ -492,10 +501,10 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                         Pm[b, l, j] = acc + Qd[l, j]
         # filterpy (1.4.5) redraws the sigma points from the prior (x-, P- including Q)
         # for the update; so do we (at k = 0 the prior is the initial x0, P0).
-        for b in range(B):
+        for b in range(nA):
             _draw_sigma_points(Pm[b], P0[b], z[b], n + lam, jitter, L, sig[b], counts[b])
         # ---------------- update
-        for b in range(B):
+        for b in range(nA):
             L1 = base[b, param_L1]
             L2 = base[b, param_L2]
             L3 = base[b, param_L3]
@@ -725,8 +734,12 @@ _CONSTRAINTS = {"project": 0, "truncate": 1, "project_joint": 2}
 
 
 def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndarray | None = None,
-               P0: np.ndarray | None = None) -> FilterOutput:
-    """Run the batched filter over B runs at once (one step_batch call per time step)."""
+               P0: np.ndarray | None = None, n_steps: np.ndarray | None = None) -> FilterOutput:
+    """Run the batched filter over B runs at once (one step_batch call per time step).
+
+    ``n_steps`` (B,): filter run b over its first n_steps[b] samples only (its outputs after
+    that are NaN, its counts stop); runs of different lengths then share a batch without
+    paying for the padding."""
     if cfg.constraint not in _CONSTRAINTS:
         raise ValueError(f"FilterConfig.constraint: {cfg.constraint!r} is not one of {sorted(_CONSTRAINTS)}")
     B, T = inp.u.shape
@@ -744,26 +757,37 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     y = scaled_measurements(inp)
     pS = np.full((B, T), np.nan) if inp.pS is None else np.ascontiguousarray(inp.pS, dtype=float)
     m = 3
-    out_z = np.empty((B, T, n))
-    out_sd = np.empty((B, T, n))
-    out_nu = np.empty((B, T, m))
-    out_nis = np.empty((B, T))
+    steps = np.full(B, T, dtype=np.int64) if n_steps is None else np.minimum(np.asarray(n_steps, np.int64), T)
+    # the kernel needs the active runs first: order the runs by decreasing length (and back)
+    order = slice(None) if n_steps is None else np.argsort(-steps, kind="stable")
+    fill = np.empty if n_steps is None else (lambda shape: np.full(shape, np.nan))
+    out_z = fill((B, T, n))
+    out_sd = fill((B, T, n))
+    out_nu = fill((B, T, m))
+    out_nis = fill((B, T))
     counts = np.zeros((B, 4), dtype=np.int64)
-    out_ll = np.empty((B, T))
+    out_ll = fill((B, T))
     freeze_k = -1 if cfg.freeze_calib_s is None else int(round(cfg.freeze_calib_s / inp.dt))
     freeze_mask = np.zeros(n, dtype=np.bool_)
     for i, name in enumerate(cfg.calibrate):
         freeze_mask[N_AUG + i] = name not in cfg.calib_free
     nis_alpha = min(1.0, inp.dt / cfg.nis_tau) if cfg.nis_tau > 0 else 1.0
     nis_limit = cfg.nis_factor * m if cfg.nis_factor > 0 else np.inf
-    _run(np.ascontiguousarray(z0, dtype=float), np.ascontiguousarray(P0, dtype=float), Qd, Rd,
-         np.ascontiguousarray(inp.u, dtype=float), y, pS,
-         np.ascontiguousarray(inp.params, dtype=float), scale, cols, rel, int(inp.pos_kind),
+    z0 = np.broadcast_to(z0, (B, n))
+    P0 = np.broadcast_to(P0, (B, n, n))
+    _run(np.ascontiguousarray(z0[order], dtype=float), np.ascontiguousarray(P0[order], dtype=float), Qd, Rd,
+         np.ascontiguousarray(inp.u[order], dtype=float), np.ascontiguousarray(y[order]),
+         np.ascontiguousarray(pS[order]),
+         np.ascontiguousarray(inp.params[order], dtype=float), scale, cols, rel, int(inp.pos_kind),
          Wm, Wc, float(lam), bool(cfg.clip_leaks), bool(cfg.project_mean), bool(cfg.project_internal),
          _CONSTRAINTS[cfg.constraint], bool(cfg.truncate_cov), float(cfg.truncate_min_mass),
          freeze_k, freeze_mask, float(cfg.freeze_sd_factor), bool(cfg.symmetrise),
          float(nis_alpha), float(nis_limit), float(cfg.jitter), float(inp.dt),
-         out_z, out_sd, out_nu, out_nis, counts, out_ll)
+         out_z, out_sd, out_nu, out_nis, counts, out_ll, steps[order])
+    if n_steps is not None:  # results in the caller's order
+        back = np.argsort(order)
+        out_z, out_sd, out_nu, out_nis, counts, out_ll = (
+            a[back] for a in (out_z, out_sd, out_nu, out_nis, counts, out_ll))
     return FilterOutput(
         t=np.arange(T) * inp.dt, mean=out_z * scale, std=out_sd * scale, nu=out_nu, nis=out_nis,
         n_nan=counts[:, 0], n_jitter=counts[:, 1], n_cov_reset=counts[:, 2], n_state_reset=counts[:, 3],

@@ -130,3 +130,32 @@ def test_onset_estimate_is_never_after_the_alarm():
     assert iso.onset_index(g, 2500, 1500, DT) == 2001 - lead
     assert iso.onset_index(g, 2500, 1900, DT) == 1900
     assert iso.onset_index(g, 1200, 1500, DT) == 1200
+
+
+def test_compiled_cusum_and_vectorised_nis_run_equal_the_loops():
+    """detect.cusum (compiled recursion) and detect.nis_alarm (vectorised run length) equal
+    the plain per-sample loops they replaced, on seeded random residuals."""
+    from types import SimpleNamespace
+    from fdi.detect import Thresholds, cusum, nis_alarm
+    rng = np.random.default_rng(4)
+    r = rng.normal(0.5, 2.0, (3, 2000))
+    r[1, 300:310] = np.nan
+    active = rng.random((3, 2000)) > 0.3
+    g = np.zeros_like(r)
+    acc = np.zeros(3)
+    inc = np.where(active, np.nan_to_num(r - 1.0, nan=-1.0) * DT, 0.0)
+    for k in range(2000):
+        acc = np.maximum(0.0, acc + inc[:, k]) if k >= 100 else acc
+        g[:, k] = acc
+    assert np.array_equal(cusum(r, 1.0, DT, 100, active), g)
+    th = Thresholds(nis_limit=9.0, nis_hold_s=0.05, warmup_s=0.1)
+    nis = np.where(rng.random((3, 2000)) > 0.02, 20.0, 1.0)
+    nis[2] = 1.0
+    out = SimpleNamespace(nis=nis, t=np.arange(2000) * DT)
+    hi = nis > 9.0
+    hi[:, :100] = False
+    run, first = np.zeros(3, dtype=int), np.full(3, -1)
+    for k in range(2000):
+        run = np.where(hi[:, k], run + 1, 0)
+        first[(run >= 50) & (first < 0)] = k
+    assert np.array_equal(nis_alarm(out, th), first) and first[2] == -1 and first[0] > 0

@@ -240,3 +240,20 @@ def test_unknown_input_state_recovers_a_concealed_chamber_flow(plant_vector):
     assert est_A[0, late].mean() == pytest.approx(q_dA, rel=0.2)
     assert abs(est_B[0, late].mean()) < 0.2 * abs(q_dA)
     assert np.all(np.isfinite(sd_A))
+
+
+def test_runs_of_different_lengths_equal_their_own_runs(plant_vector):
+    """run_filter(n_steps=...) filters run b over its first n_steps[b] samples only (NaN after):
+    each run equals the same run filtered alone over that length, in any order of lengths."""
+    t = np.arange(301) * DT
+    runs = _runs(plant_vector, T=301, B=3, faults={"K_extA": profile("step", lpm(0.5), t, 0.1)})
+    steps = np.array([150, 301, 40])
+    out = run_filter(runs.inp, n_steps=steps)
+    from dataclasses import replace
+    for b, nb in enumerate(steps):
+        one = replace(runs.inp, u=runs.inp.u[b:b + 1, :nb], pA=runs.inp.pA[b:b + 1, :nb],
+                      pB=runs.inp.pB[b:b + 1, :nb], pos=runs.inp.pos[b:b + 1, :nb], params=runs.inp.params[b:b + 1])
+        single = run_filter(one)
+        assert np.max(np.abs(out.mean[b, :nb] - single.mean[0]) / state_scale(out.config)) < 1e-9
+        assert np.allclose(out.ll[b, :nb], single.ll[0], rtol=0, atol=1e-9)
+        assert np.all(np.isnan(out.mean[b, nb:]))
