@@ -15,6 +15,10 @@ Alarms: a one-sided CUSUM per hypothesis on its change residual in continuous ti
 alarm when ``g > h`` [sigma s]. sigma, the votes, the confusable pairs and h come from
 the sensitivity studies of :mod:`fdi.thresholds` (docs/fdi.md). A model-fit alarm on
 the weighted NIS flags faults that no parameter explains.
+
+Isolation and size: ``Thresholds.isolation = "likelihood"`` (the default) hands an alarm to the
+bank of constrained filters of :mod:`fdi.isolate`; "signature" keeps the first-alarm rule with
+the confusable pairs of the thresholds file.
 """
 
 from __future__ import annotations

@@ -235,7 +235,12 @@ def _figure(path: Path, t, out, res, stats, th, diag) -> None:
     for h, ta in diag.alarms.items():
         for a in axes:
             a.axvline(ta, color="r", lw=0.8)
-    fig.suptitle(f"diagnosis: {diag.status} {', '.join(diag.isolated)}")
+    title = f"diagnosis: {diag.status} {', '.join(diag.isolated)}"
+    if diag.isolation_time_s is not None:  # the likelihood bank's decision
+        for a in axes:
+            a.axvline(diag.isolation_time_s, color="k", lw=1.2, ls=":")
+        title += f" (isolated by likelihood at {diag.isolation_time_s:.2f} s, dotted)"
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
