@@ -269,8 +269,11 @@ def _rank_by_ukf(data: Prepared, final: FitResult, calib, cands, p_S: float, out
     """UKF unknown-input estimates, sparse-regressed on the candidate features.
 
     Returns (candidate indices that pass the regression's BIC test, best first; the regression
-    coefficient of each candidate as a start value; candidates for a second term)."""
+    coefficient of each candidate as a start value; candidates for a second term), or None when the
+    filter's estimates are not finite."""
     ui = estimate_unknown_inputs(data, final.params)
+    if not all(np.all(np.isfinite(a)) for a in (ui.states, *ui.est.values(), *ui.sd.values())):
+        return None  # the filter failed on this recording: the caller falls back to the score test
     ui.states = np.ascontiguousarray(ui.states)
     st = ui.states
     idx = np.arange(int(round(WARMUP_S / data.dt)), data.n, max(1, int(round(REG_STEP_S / data.dt))))
@@ -324,8 +327,12 @@ def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: 
     cands = _candidates(features(data, p_S))
     out = {"estimator": estimator, "terms": [], "significant": False, "equation": "no term", "mapped": "",
            "in_library": False, **({"note": note} if note else {})}
-    if estimator == "ukf":
-        order, coefs, second = _rank_by_ukf(data, final, calib, cands, p_S, out)
+    ranked = _rank_by_ukf(data, final, calib, cands, p_S, out) if estimator == "ukf" else None
+    if estimator == "ukf" and ranked is None:
+        estimator = out["estimator"] = "score_test"
+        out["note"] = "the UKF's unknown-input estimates were not finite: score test used"
+    if ranked is not None:
+        order, coefs, second = ranked
     elif estimator == "score_test":
         order, coefs, second = _rank_by_score_test(split, data, final, calib, cands, p_S, out)
     else:
