@@ -227,28 +227,22 @@ def calibration_nuisance(states: np.ndarray, u: np.ndarray, params: np.ndarray, 
 # ---------------------------------------------------------------- sparse regression
 
 
-def integrated_time(r: np.ndarray, max_lag: int = 200) -> float:
-    """Integrated autocorrelation time of r (samples), summed until the ACF falls below 0.05."""
-    r = r - r.mean()
-    var = float(np.mean(r * r))
-    if var == 0:
-        return 1.0
-    tau = 1.0
-    for k in range(1, min(max_lag, len(r) - 1)):
-        rho = float(np.mean(r[k:] * r[:-k])) / var
-        if rho < 0.05:
-            break
-        tau += 2 * rho
-    return tau
+#: Relative singular-value floor of the nuisance basis: the calibration columns at the calibrated point
+#: and at the box centre are nearly collinear, and F_d's are zero.
+NUISANCE_RANK_TOL = 1e-9
 
 
-def _wls(X: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Residual sum of squares, coefficients and residual of (pre-weighted) least squares."""
+def _orthonormal_basis(X: np.ndarray) -> np.ndarray:
+    """(n, r) orthonormal basis of the column space of X (n, k), rank-revealing (SVD)."""
     if X.shape[1] == 0:
-        return float(y @ y), np.zeros(0), y
-    c, *_ = np.linalg.lstsq(X, y, rcond=None)
-    r = y - X @ c
-    return float(r @ r), c, r
+        return np.zeros((X.shape[0], 0))
+    U, sv, _ = np.linalg.svd(X, full_matrices=False)
+    return U[:, sv > NUISANCE_RANK_TOL * max(float(sv[0]), 1e-300)]
+
+
+def _residual_of(B: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Y (n,) or (n, m) with its projection on the orthonormal basis B (n, r) removed."""
+    return Y - B @ (B.T @ Y)
 
 
 @dataclass
@@ -275,44 +269,53 @@ def sparse_regression(target: str, y: np.ndarray, w: np.ndarray, feats: dict[str
                       nuisance: np.ndarray, max_terms: int, bic_strong: float, n_eff: float) -> Regression:
     """Weighted forward selection of terms for ``y`` (n,) [SI], weights w (n,) = 1/std.
 
-    The nuisance columns (n, k) are always in the model (and the penalty of all candidates alike).
-    A term enters only while it lowers the BIC (with ``n_eff`` effective samples) by more than
-    ``bic_strong``. n_eff comes from the filter's lag (:func:`estimate_n_eff`), not from a residual:
-    taken from the nuisance-only residual it under-rated the one input that carries the effect
-    (outside_library: n_eff 50 for Q_dA, whose residual holds the leak, against 2100 for Q_dB, so a
-    spurious Q_dB term ranked first), and taken from each candidate's own residual no term passed."""
-    yw = y * w
-    cols = {k: v * w for k, v in feats.items() if np.any(v != 0)}
-    norms = {k: float(np.linalg.norm(v)) for k, v in cols.items()}
-    cols = {k: v / norms[k] for k, v in cols.items() if norms[k] > 0}
-    Nw = nuisance * w[:, None]
-    nn = np.linalg.norm(Nw, axis=0)
-    Nw = Nw[:, nn > 0] / nn[nn > 0]
-    rss0, _, _ = _wls(Nw, yw)
+    The nuisance columns (n, k) are always in the model (and the penalty of all candidates alike): they
+    are projected out once, and every candidate is judged in what is left (Frisch-Waugh-Lovell: the same
+    coefficients as one least-squares fit with the nuisance, at a fraction of the cost: 144 lstsq calls
+    took 4.9 s on the shared machine). A term enters only while it lowers the BIC (with ``n_eff``
+    effective samples) by more than ``bic_strong``. n_eff comes from the filter's lag
+    (:func:`estimate_n_eff`), not from a residual: taken from the nuisance-only residual it under-rated
+    the one input that carries the effect (outside_library: n_eff 50 for Q_dA, whose residual holds the
+    leak, against 2100 for Q_dB, so a spurious Q_dB term ranked first), and taken from each candidate's
+    own residual no term passed."""
+    names = [k for k, v in feats.items() if np.any(v != 0)]
+    if not names:
+        return Regression(target, {}, [], n_eff)
+    V = np.column_stack([feats[k] * w for k in names])
+    norms = np.linalg.norm(V, axis=0)
+    B = _orthonormal_basis(nuisance * w[:, None])
+    r0 = _residual_of(B, y * w)
+    Vp = _residual_of(B, V)
+    rss0 = float(r0 @ r0)
 
     def dbic(rss, k):
         return n_eff * math.log(max(rss, 1e-300) / max(rss0, 1e-300)) + k * math.log(n_eff)
 
+    vv = np.sum(Vp * Vp, axis=0)
+    ok = vv > NUISANCE_RANK_TOL * norms ** 2
+    vr = Vp.T @ r0
     single = {}
-    for k, v in cols.items():
-        rss, c, _ = _wls(np.column_stack([Nw, v]), yw)
-        single[k] = (dbic(rss, 1), float(c[-1] / norms[k]))
-    chosen: list[str] = []
-    best = (0.0, [])
+    for j, k in enumerate(names):
+        if ok[j]:
+            single[k] = (dbic(rss0 - vr[j] ** 2 / vv[j], 1), float(vr[j] / vv[j]))
+    chosen: list[int] = []
+    best: tuple[float, list] = (0.0, [])
+    r, W = r0.copy(), Vp.copy()
     for _ in range(max_terms):
-        trial = None
-        for k, v in cols.items():
-            if k in chosen:
-                continue
-            rss, c, _ = _wls(np.column_stack([Nw] + [cols[j] for j in chosen + [k]]), yw)
-            if trial is None or rss < trial[0]:
-                trial = (rss, k, c)
-        if trial is None:
+        ww = np.sum(W * W, axis=0)
+        gain = np.where(ok & (ww > NUISANCE_RANK_TOL * norms ** 2), (W.T @ r) ** 2 / np.where(ww > 0, ww, 1), -1.0)
+        gain[chosen] = -1.0
+        j = int(np.argmax(gain))
+        if gain[j] <= 0:
             break
-        chosen.append(trial[1])
-        d = dbic(trial[0], len(chosen))
+        chosen.append(j)
+        q = W[:, j] / math.sqrt(ww[j])
+        r = r - q * (q @ r)
+        W = W - np.outer(q, q @ W)
+        d = dbic(float(r @ r), len(chosen))
         if d >= best[0] - bic_strong:
             break
-        coefs = trial[2][Nw.shape[1]:]
-        best = (d, [(j, float(cj / norms[j])) for j, cj in zip(chosen, coefs)])
+        X = Vp[:, chosen]
+        c, *_ = np.linalg.lstsq(X, r0, rcond=None)
+        best = (d, [(names[i], float(ci)) for i, ci in zip(chosen, c)])
     return Regression(target, single, best[1], n_eff)
