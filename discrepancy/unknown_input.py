@@ -29,9 +29,10 @@ Calibration nuisance. The plant vector passed in is already calibrated on the
 recording, and the calibration absorbs part of any missing flow (a leak out of A
 looks partly like a spool offset and a smaller notch flow). What the calibration
 parameters could still change is expressed as an *equivalent* unknown input
-(:func:`calibration_equivalents`, from the model's own ``rhs``) and regressed
-along with every candidate term, so that the sparse regression chooses terms the
-calibration cannot explain.
+(:func:`calibration_nuisance`, from the model's own ``rhs``: linearised at the
+calibrated point and at the box centre, plus the exact move between the two) and
+regressed along with every candidate term, so that the sparse regression chooses
+terms the calibration cannot explain.
 """
 
 from __future__ import annotations
