@@ -93,6 +93,9 @@ class Thresholds:
     #: "likelihood": the stated false-isolation level the log-likelihood margin is derived
     #: from (fdi.isolate.margin_for); not fitted to any run
     false_isolation_level: float = 0.01
+    #: "likelihood": also test every pair of faults after the alarm (fdi.isolate.run_pairs,
+    #: session 7) so that several simultaneous faults are named
+    several_faults: bool = True
 
     @classmethod
     def load(cls, path: str | Path) -> "Thresholds":
@@ -358,7 +361,7 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
         # the change test is armed after the baseline window (own baseline) or the warm-up
         k_ready = int(round((th.warmup_s + (th.baseline_s if own_baseline else 0.0)) / dt))
         decision = isolate.isolate(out, stats, th.h, k_ready, margin, horizon_s=isolate.DECISION_WINDOW_S,
-                                   rows=[b])[b]
+                                   rows=[b], pairs=th.several_faults)[b]
     d = decision
     name = isolate.hypothesis_name(d.hypothesis or (d.candidates[0] if d.candidates else "offset"), d.size)
     # +-2 sigma band: the bank filter's std and the healthy spread from model uncertainty
@@ -375,9 +378,50 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
     conf = {isolate.hypothesis_name(h, d.size if h == d.hypothesis else 0.0): v / tot for h, v in w.items()}
     lik = {"log_likelihood_minus_best_nats": d.llr, "best_minus_healthy_nats": d.llr_none,
            "margin_nats": margin, "bank_start_s": float(out.t[min(d.k0, len(out.t) - 1)])}
+    if d.pair_llr:
+        lik["pair_minus_best_single_nats"] = d.pair_llr
+    if d.several:
+        return _several(out, th, d, lik, margin)
+    if d.pair_candidates:
+        second = [p.split(isolate.PAIR_SEP)[1] for p in d.pair_candidates]
+        note = (f"{name} alone is rejected at the {th.false_isolation_level:g} false-isolation level (pairs with "
+                f"{', '.join(second)} lead it by >= {margin:.2g} nats) but the second fault is not isolable")
+        return "fault, not isolable", [name] + second, {name: size}, conf, None, lik, note
     if d.hypothesis is not None:
         return "fault", [name], {name: size}, conf, float(out.t[d.index]), lik, ""
     cands = [isolate.hypothesis_name(h, d.size) for h in d.candidates]
     note = (f"no single-fault hypothesis beats the others by {margin:.2g} nats (the margin of a "
             f"{th.false_isolation_level:g} false-isolation level): {', '.join(cands)} explain the data alike")
     return "fault, not isolable", cands, {name: size}, conf, None, lik, note
+
+
+def _size_entry(name: str, m: float, s: float) -> dict:
+    """The size of a change m +- 2 s (SI) of hypothesis ``name`` in L/min at 10 MPa or %."""
+    if name.startswith("K_"):
+        return {"value": float(leak_lpm(m)), "minus_2sigma": float(leak_lpm(m - 2 * s)),
+                "plus_2sigma": float(leak_lpm(m + 2 * s)), "unit": "L/min at 10 MPa", "K_m3_per_s_sqrtPa": m}
+    return {"value": 100 * m, "minus_2sigma": 100 * (m - 2 * s), "plus_2sigma": 100 * (m + 2 * s),
+            "unit": "% of spool travel"}
+
+
+def _several(out: FilterOutput, th: Thresholds, d, lik: dict, margin: float):
+    """Status, isolated, size, confidence, isolation time, likelihoods and note of an accepted
+    pair: both members sized by the pair's filter (+-2 sigma with the healthy spread); the
+    confidence of a member is the posterior probability (equal priors, exp of the
+    log-likelihoods of H1 and its pairs) of the hypotheses that contain it."""
+    from . import isolate
+
+    names, size = [], {}
+    for m in d.several:
+        nm = isolate.hypothesis_name(m, d.several_size[m])
+        names.append(nm)
+        s = math.hypot(d.several_size_sd[m], th.nuisance_sd.get(m, 0.0))
+        size[nm] = _size_entry(nm, d.several_size[m], s)
+    h1 = isolate.best_single(d)
+    w = {h1: 1.0, **{p: math.exp(min(v, 700.0)) for p, v in d.pair_llr.items()}}
+    tot = sum(w.values())
+    conf = {nm: sum(v for p, v in w.items() if m in p.split(isolate.PAIR_SEP)) / tot for m, nm in zip(d.several, names)}
+    note = (f"{'+'.join(d.several)} leads {h1} alone and the other pairs by >= {margin:.2g} nats "
+            f"(the margin of a {th.false_isolation_level:g} false-isolation level)")
+    return "several faults", names, size, conf, float(out.t[d.several_index]), lik, note
+

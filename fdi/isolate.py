@@ -26,16 +26,37 @@ at sample k_a:
    Otherwise "not isolable", with the hypotheses within the margin of the best.
 5. **size**: the free parameter of the isolated hypothesis' filter at the end of its window
    (the estimate of a constant from all the window's data), minus its healthy value.
+6. **several faults** (:func:`run_pairs`, :func:`decide_pair`): after the alarm, the four
+   single-fault filters and the six pair filters (two fault parameters free) are RESTARTED
+   from the model state of the best single's filter at the alarm, every fault parameter back
+   at its healthy value with its prior, and run for up to ``PAIR_WINDOW_S`` in ONE batched
+   call. "Several faults" is declared at the end of that window (one look) if the best pair
+   leads every single and every other pair by the margin of the same false-isolation level for these ten
+   hypotheses; the pair's filter sizes both parameters. A pair that leads every single but
+   not the other pairs is reported as "fault, not isolable" (``Decision.pair_candidates``).
 
 The margin is not fitted: with equal prior probabilities, the posterior probability of the
 best of n hypotheses is at least 1 / (1 + (n - 1) e^-margin); :func:`margin_for` gives the
 margin of a stated false-isolation level (``FALSE_ISOLATION_LEVEL``).
+
+The pair rule is the same rule, not a new penalty: each filter's innovation likelihood with
+its free parameters as Gaussian random constants (prior :data:`PRIOR_SD`) is the *evidence*
+p(y | H) = integral p(y | theta, H) p(theta | H) dtheta (the Kalman predictive decomposition,
+exact for the linearised model), so the second free parameter already pays its Occam factor,
+about 1/2 ln(1 + n I sigma_prior^2) nats for n samples of information I each (the BIC term
+1/2 ln n plus a prior term). On top of it the pair must lead by ln(9 (1 - alpha) / alpha)
+(6.80 nats at alpha = 1 %: ten hypotheses, equal priors), the posterior rule of
+:func:`margin_for`. For comparison, the likelihood-ratio test of one extra parameter on the
+boundary (leak >= 0: a 50:50 mixture of chi2_0 and chi2_1) at 1 % needs 2.71 nats at the
+maximum-likelihood fit, which the evidence rule exceeds on both counts. The comparison uses
+the data after the alarm only (the restart), a partial Bayes factor with the data up to the
+alarm as its training sample.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -51,6 +72,22 @@ REFERENCE = PRESETS["calibrated"]
 BANK = {"none": None, "K_int": I_KINT, "K_extA": I_KEXTA, "K_extB": I_KEXTB, "offset": I_OFFSET}
 FAULTS = tuple(h for h, j in BANK.items() if j is not None)
 FAULT_IDX = (I_KINT, I_KEXTA, I_KEXTB, I_OFFSET)
+#: Separator of a pair hypothesis' name: "K_int+K_extB" has both parameters free.
+PAIR_SEP = "+"
+#: Pair hypotheses: name -> the two states left free (every unordered pair of FAULTS).
+PAIRS = {f"{a}{PAIR_SEP}{b}": (BANK[a], BANK[b]) for i, a in enumerate(FAULTS) for b in FAULTS[i + 1:]}
+#: Hypotheses of the several-faults stage: the four single faults, then the six pairs.
+MULTI = FAULTS + tuple(PAIRS)
+#: s: the several-faults stage runs at most this long after the alarm (replay). Measured on
+#: the nominal plant (sine 0.25 Hz, 494 kg, 0.5 L/min pairs): 1 s after the alarm the three
+#: leaks are nearly interchangeable (K_int + K_extB vs K_extA alone within 0-4 nats), 4.5 s
+#: after the onset (one extension and retraction) the true pair leads by >= 155 nats.
+PAIR_WINDOW_S = 4.0
+#: Smallest change of a pair member that is reported (SI): the smallest sizes the issue asks
+#: about (0.1 L/min leaks, 1 % offset). Not fitted: a second parameter below it is what a
+#: constant-parameter model picks up from a fault that is not constant (ramps, intermittent
+#: leaks: measured 0.00-0.04 L/min on the shipped scenarios), not a fault of interest.
+MIN_PAIR_SIZE = {"K_int": 0.1 * K_PER_LPM, "K_extA": 0.1 * K_PER_LPM, "K_extB": 0.1 * K_PER_LPM, "offset": 0.01}
 #: Prior std of the free fault parameter (SI): the largest leak of the issue's grid (1 L/min)
 #: and the offset that changes the pressures as much (2 %). Measured: scaling both by 0.1 or
 #: 0.3 changes no decision (the likelihood gaps are tens to thousands of nats).
@@ -73,11 +110,28 @@ DECISION_WINDOW_S = 1.0
 FALSE_ISOLATION_LEVEL = 0.01
 
 
+def free_states(name: str) -> tuple:
+    """The state indices a bank hypothesis leaves free: () for "none", one for a single fault
+    (a BANK name), two for a pair ("A+B", a PAIRS name, in either order)."""
+    if name in BANK:
+        return () if BANK[name] is None else (BANK[name],)
+    parts = name.split(PAIR_SEP)
+    if len(parts) != 2 or not all(p in FAULTS for p in parts) or parts[0] == parts[1]:
+        raise ValueError(f"unknown bank hypothesis {name!r}: a name of BANK or 'A{PAIR_SEP}B' with A, B in {FAULTS}")
+    return tuple(BANK[p] for p in parts)
+
+
 def margin_for(level: float = FALSE_ISOLATION_LEVEL, n_hypotheses: int = len(FAULTS)) -> float:
     """Log-likelihood margin [nats] such that, with equal priors, the best hypothesis has
     posterior >= 1 - level when it beats each of the other n - 1 by the margin:
     1 / (1 + (n - 1) e^-margin) >= 1 - level  <=>  margin = ln((n - 1) (1 - level) / level)."""
     return math.log((n_hypotheses - 1) * (1.0 - level) / level)
+
+
+def margin_level(margin: float, n_hypotheses: int = len(FAULTS)) -> float:
+    """The false-isolation level of a margin [nats] (inverse of :func:`margin_for`):
+    level = (n - 1) / (n - 1 + e^margin)."""
+    return (n_hypotheses - 1) / (n_hypotheses - 1 + math.exp(margin))
 
 
 def reference_config(base: FilterConfig = REFERENCE) -> FilterConfig:
@@ -144,31 +198,45 @@ def run_reference(out: FilterOutput, rows: np.ndarray, k_end: np.ndarray) -> Fil
 
 @dataclass
 class BankResult:
-    """Per run of the bank (n runs, hypotheses in BANK order, L samples from k0)."""
+    """Per run of the bank (n runs, H hypotheses, L samples from k0)."""
 
     k0: np.ndarray  #: (n,) start index of each run's bank in the recording
     loglik: np.ndarray  #: (n, H, L) cumulative innovation log-likelihood from k0 (scaled units)
-    free: np.ndarray  #: (n, H, L) estimate of each hypothesis' free parameter (SI; NaN for "none")
+    free: np.ndarray  #: (n, H, L) estimate of each hypothesis' (first) free parameter (SI; NaN for "none")
     free_sd: np.ndarray  #: (n, H, L)
-    healthy: np.ndarray  #: (n, H) healthy value of each hypothesis' free parameter (SI)
+    healthy: np.ndarray  #: (n, H) healthy value of each hypothesis' (first) free parameter (SI)
     n_valid: np.ndarray  #: (n,) samples inside each run's window
-    names: tuple = tuple(BANK)  #: the hypotheses, in the order of axis 1
+    names: tuple = tuple(BANK)  #: the hypotheses, in the order of axis 1 (per run: a list of tuples)
+    #: (n, H, 4) change of each fault parameter (FAULT_IDX order, SI) at the window's last
+    #: sample: the estimate minus its healthy value (0 for a held one)
+    change: np.ndarray | None = None
+    change_sd: np.ndarray | None = None  #: (n, H, 4) its filter std (SI)
+    z_last: np.ndarray | None = None  #: (n, H, N_AUG) scaled mean at the window's last sample
+    var_last: np.ndarray | None = None  #: (n, H, N_AUG) its scaled diagonal variances
+    params: np.ndarray | None = None  #: (n, len(P)) parameter rows (reference calibration written in)
+    z0: np.ndarray | None = None  #: (n, N_AUG) scaled start mean
+    nis: np.ndarray | None = None  #: (n, H) mean normalised innovation squared over the window (3 if consistent)
+
+    def hyps(self, i: int) -> tuple:
+        """The hypothesis names of run i (axis 1 of the arrays)."""
+        return self.names[i] if isinstance(self.names, list) else self.names
 
 
 def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndarray, k1: np.ndarray,
-             hypotheses: tuple = tuple(BANK), ref_rows: np.ndarray | None = None) -> BankResult:
+             hypotheses: tuple | list = tuple(BANK), ref_rows: np.ndarray | None = None) -> BankResult:
     """The hypothesis bank of runs ``rows`` of the detection output ``out``, run i over
     samples [k0[i], k1[i]), seeded from row ``ref_rows[i]`` (default i) of the reference
-    ``ref`` at k0[i]; ONE run_filter call for all runs and ``hypotheses`` (names of BANK)."""
+    ``ref`` at k0[i]; ONE run_filter call for all runs and ``hypotheses``: names of BANK or
+    PAIRS (:func:`free_states`), the same tuple for every run, or a list of one tuple per run
+    (all of one length H)."""
     inp, det = out.inp, ref.config
     rows, k0, k1 = (np.asarray(a, dtype=np.int64) for a in (rows, k0, k1))
     ref_rows = np.arange(len(rows)) if ref_rows is None else np.asarray(ref_rows)
-    n, H = len(rows), len(hypotheses)
-    frees = [BANK[name] for name in hypotheses]
-    L = int(max(1, (k1 - k0).max()))
+    n = len(rows)
+    per_run = isinstance(hypotheses, list)
+    names = [tuple(h) for h in hypotheses] if per_run else [tuple(hypotheses)] * n
     cols, rel = param_layout(det)
     sc = state_scale(det)[:N_AUG]
-    seg = _rows(inp, rows, k0, k1, L)
     params = np.empty((n, inp.params.shape[1]))
     z0 = np.empty((n, N_AUG))
     var = np.empty((n, N_AUG))
@@ -180,29 +248,109 @@ def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndar
                 params[i, cols[a]] = inp.params[b, cols[a]] * (1.0 + max(mean[N_MODEL + a], -0.95))
         z0[i] = mean[:N_AUG] / sc
         var[i] = (ref.std[ref_rows[i], ka, :N_AUG] / sc) ** 2
-    P0 = np.zeros((n, H, N_AUG, N_AUG))
-    for h, free in enumerate(frees):
-        d = var.copy()
-        d[:, list(FAULT_IDX)] = FROZEN_VAR
-        if free is not None:
-            d[:, free] += (PRIOR_SD[free] / SCALE[free]) ** 2
-        P0[:, h] = np.einsum("bi,ij->bij", d, np.eye(N_AUG))
+    return _run_hypotheses(inp, bank_config(det), rows, k0, k1, params, z0, var, names, per_run)
+
+
+def _run_hypotheses(inp, cfg: FilterConfig, rows, k0, k1, params, z0, var, names: list, per_run: bool) -> BankResult:
+    """The filters ``cfg`` of runs ``rows`` over [k0, k1): run i starts from the scaled mean
+    z0[i] (n_states,) and diagonal variances var[i], its parameter row params[i]; in hypothesis
+    names[i][h] the fault states are held (FROZEN_VAR) except the free ones, whose variance
+    gets PRIOR_SD^2 added. ONE run_filter call (B = runs x hypotheses)."""
+    n, H = len(rows), len(names[0])
+    ns = z0.shape[1]
+    frees = [[free_states(h) for h in nm] for nm in names]  # (n, H) tuples of state indices
+    L = int(max(1, (k1 - k0).max()))
+    sc = state_scale(cfg)
+    seg = _rows(inp, rows, k0, k1, L)
+    P0 = np.zeros((n, H, ns, ns))
+    for i in range(n):
+        for h, free in enumerate(frees[i]):
+            d = var[i].copy()
+            d[list(FAULT_IDX)] = FROZEN_VAR
+            for j in free:
+                d[j] += (PRIOR_SD[j] / SCALE[j]) ** 2
+            P0[i, h] = np.diag(d)
     rep = lambda a: None if a is None else np.repeat(a, H, axis=0)  # noqa: E731  run-major, hypothesis-minor
     bank_inp = replace(inp, **{k: rep(v) for k, v in seg.items()}, params=rep(params))
-    res = run_filter(bank_inp, bank_config(det), z0=rep(z0), P0=P0.reshape(n * H, N_AUG, N_AUG),
+    res = run_filter(bank_inp, cfg, z0=rep(z0), P0=P0.reshape(n * H, ns, ns),
                      n_steps=rep(k1 - k0))  # each run only over its own window
     loglik = np.cumsum(np.nan_to_num(res.ll), axis=1).reshape(n, H, L)
+    nis = np.nanmean(np.nansum(res.nu ** 2, axis=2) + np.where(np.isnan(res.ll), np.nan, 0.0), axis=1).reshape(n, H)
     mean = res.mean.reshape(n, H, L, -1)
     std = res.std.reshape(n, H, L, -1)
     free_est = np.full((n, H, L), np.nan)
     free_sd = np.full((n, H, L), np.nan)
     healthy = np.full((n, H), np.nan)
-    for h, j in enumerate(frees):
-        if j is not None:
-            free_est[:, h], free_sd[:, h] = mean[:, h, :, j], std[:, h, :, j]
-            healthy[:, h] = z0[:, j] * sc[j]
+    last = np.clip(k1 - k0 - 1, 0, L - 1)
+    fi = list(FAULT_IDX)
+    z_last = mean[np.arange(n), :, last] / sc  # (n, H, n_states) scaled
+    v_last = (std[np.arange(n), :, last] / sc) ** 2
+    change = z_last[:, :, fi] * sc[fi] - (z0[:, fi] * sc[fi])[:, None, :]
+    change_sd = np.sqrt(v_last[:, :, fi]) * sc[fi]
+    for i in range(n):
+        for h, free in enumerate(frees[i]):
+            if free:
+                j = free[0]
+                free_est[i, h], free_sd[i, h] = mean[i, h, :, j], std[i, h, :, j]
+                healthy[i, h] = z0[i, j] * sc[j]
     return BankResult(k0=k0, loglik=loglik, free=free_est, free_sd=free_sd, healthy=healthy, n_valid=k1 - k0,
-                      names=tuple(hypotheses))
+                      names=names if per_run else names[0], change=change, change_sd=change_sd,
+                      z_last=z_last, var_last=v_last, params=params, z0=z0, nis=nis)
+
+
+def run_pairs(out: FilterOutput, ref: FilterOutput, first: BankResult, rows: np.ndarray, k1: np.ndarray,
+              best: list, calibrate: bool = False) -> BankResult:
+    """Several-faults stage of runs ``rows``: every single fault and every pair (:data:`MULTI`)
+    over [first's window end, k1[i]), each run restarted from the filter of its best single
+    fault best[i] in the stage-1 bank ``first`` at that bank's last sample (model states:
+    mean and variances; the parameter row with the reference's calibration) with EVERY fault
+    parameter back at its healthy value and the free ones given PRIOR_SD again. The restart
+    is what makes the comparison fair: a filter started before the onset has learnt
+    "no fault" from the healthy samples and then needs a second parameter to follow the step,
+    which a pair has (measured: +35 to +140 nats for a pair on a single 0.5 L/min step,
+    nominal plant, bank from 0.25 s before the onset; -0.1 to -50 nats after the restart).
+    ``calibrate``: the filters of :func:`pair_config` (calibration as constant states, 1.8x
+    the cost; an option, see its docstring) instead of the bank's (calibration held at the
+    reference's values). ONE run_filter call (B = runs x 10)."""
+    det = ref.config
+    hs = [first.hyps(i).index(b) for i, b in enumerate(best)]
+    ks = first.k0 + first.n_valid
+    if not calibrate:
+        z0 = np.stack([first.z_last[i, h] for i, h in enumerate(hs)])
+        var = np.stack([first.var_last[i, h] for i, h in enumerate(hs)])
+        z0[:, list(FAULT_IDX)] = first.z0[:, list(FAULT_IDX)]  # leaks and offset restart at healthy
+        return _run_hypotheses(out.inp, bank_config(det), rows, ks, np.maximum(k1, ks + 1), first.params, z0,
+                               var, [MULTI] * len(rows), False)
+    cfg = pair_config(det)
+    nc = len(det.calibrate)
+    sc = state_scale(cfg)
+    z0 = np.zeros((len(rows), N_AUG + nc))
+    var = np.zeros((len(rows), N_AUG + nc))
+    for i, h in enumerate(hs):
+        z0[i, :N_AUG] = first.z_last[i, h]
+        var[i, :N_AUG] = first.var_last[i, h]
+        kr = int(first.k0[i])  # the reference's calibration at the bank's start, as in the bank
+        z0[i, N_AUG:] = ref.mean[i, kr, N_AUG:N_AUG + nc] / sc[N_AUG:]
+        var[i, N_AUG:] = (ref.std[i, kr, N_AUG:N_AUG + nc] / sc[N_AUG:]) ** 2
+    z0[:, list(FAULT_IDX)] = first.z0[:, list(FAULT_IDX)]
+    params = out.inp.params[rows]  # the calibration is a state here
+    return _run_hypotheses(out.inp, cfg, rows, ks, np.maximum(k1, ks + 1), params, z0, var,
+                           [MULTI] * len(rows), False)
+
+
+def pair_config(detect: FilterConfig = REFERENCE) -> FilterConfig:
+    """The several-faults filters of ``run_pairs(calibrate=True)`` (an option, not the
+    default: 1.8x the cost, replay 8x instead of 12x real time at load 11, and on the shipped
+    scenarios it trades the spurious offset+ 0.91 % (rejected by MIN_PAIR_SIZE) for a
+    K_extB 0.15 L/min that is not): the bank's (:func:`bank_config`) plus the reference's
+    calibration states as CONSTANTS (no random walk), started from the reference's values and
+    variances. A late onset estimate lets the reference's calibration absorb part of the fault
+    (its fault states are held); a constant calibration state re-learns that in every
+    hypothesis alike, where without it a pair's second parameter absorbs it (measured on the
+    shipped int_0p5lpm_step scenario, bank start 1.8 s after the onset: K_int + offset+ ahead of
+    K_int alone by 5429 nats)."""
+    return replace(bank_config(detect), calibrate=detect.calibrate, q_calib=0.0,
+                   calib_noise=tuple((name, p0, 0.0) for name, p0, _ in detect.calib_noise))
 
 
 @dataclass
@@ -217,6 +365,17 @@ class Decision:
     k0: int  #: first sample of the bank
     size: float = float("nan")  #: change of the isolated (or best) parameter, SI
     size_sd: float = float("nan")
+    #: several faults: the two FAULTS names of the accepted pair (empty: none accepted), the
+    #: recording sample of that decision, and each member's change and std from the pair's filter (SI)
+    several: list = field(default_factory=list)
+    several_index: int = -1
+    several_size: dict = field(default_factory=dict)
+    several_size_sd: dict = field(default_factory=dict)
+    #: pair name -> its log-likelihood minus the best single's at the pair decision (or last) sample
+    pair_llr: dict = field(default_factory=dict)
+    #: pairs ahead of the best single by the margin but not of each other (ambiguous second fault)
+    pair_candidates: list = field(default_factory=list)
+    pair_nis: dict = field(default_factory=dict)  #: hypothesis -> mean NIS over the several-faults window
 
 
 def decide(bank: BankResult, i: int, k_alarm: int, margin: float) -> Decision:
@@ -244,6 +403,45 @@ def decide(bank: BankResult, i: int, k_alarm: int, margin: float) -> Decision:
     return Decision(None, -1, cands, llr, llr_none, int(bank.k0[i]), size, size_sd)
 
 
+def best_single(d: Decision) -> str:
+    """The isolated single fault, else the best of the candidates (largest llr)."""
+    return d.hypothesis if d.hypothesis is not None else max(d.llr, key=d.llr.get)
+
+
+def decide_pair(bank: BankResult, i: int, margin: float, d: Decision) -> Decision:
+    """Several faults in run i of the several-faults bank (:func:`run_pairs`, hypotheses
+    MULTI), decided ONCE, at the window's last sample (a fixed sample size: looking at every
+    sample would test many times; measured: a 0.5 + 0.5 L/min K_int + K_extA pair is led by
+    K_int + K_extB for a moment 1.2 s after the onset, by 1271 nats the other way at 4.5 s):
+    if the best pair's log-likelihood exceeds every single fault's and every other pair's by
+    ``margin`` nats and both its members changed by at least MIN_PAIR_SIZE, d gets the pair,
+    the decision sample and both members' changes from the pair filter's last estimate. Pairs
+    of such members ahead of every single by the margin but not of each other go to
+    d.pair_candidates. d.pair_llr: each pair minus the best single [nats]. Returns d."""
+    names = bank.hyps(i)
+    nv = int(bank.n_valid[i])
+    ns = len(FAULTS)
+    ll = bank.loglik[i][:, nv - 1]  # (10,): singles, then pairs
+    single = ll[:ns].max()
+    srt = np.sort(ll[ns:])
+    at = nv - 1
+    d.pair_llr = {names[ns + q]: float(ll[ns + q] - single) for q in range(len(names) - ns)}
+    d.pair_nis = {names[q]: float(bank.nis[i, q]) for q in range(len(names))}
+    big = [all(abs(bank.change[i, ns + q, FAULTS.index(m)]) >= MIN_PAIR_SIZE[m] for m in names[ns + q].split(PAIR_SEP))
+           for q in range(len(names) - ns)]
+    if not (srt[-1] - single >= margin and srt[-1] - srt[-2] >= margin and big[int(np.argmax(ll[ns:]))]):
+        d.pair_candidates = [p for q, (p, v) in enumerate(d.pair_llr.items()) if v >= margin and big[q]]
+        return d
+    q = ns + int(np.argmax(ll[ns:]))
+    members = names[q].split(PAIR_SEP)
+    d.several, d.several_index = members, int(bank.k0[i]) + at
+    for m in members:
+        c = FAULTS.index(m)
+        d.several_size[m] = float(bank.change[i, q, c])
+        d.several_size_sd[m] = float(bank.change_sd[i, q, c])
+    return d
+
+
 def first_alarms(stats: dict, h: dict) -> tuple[np.ndarray, list]:
     """(B,) first alarm sample of any hypothesis (-1: none) and, per run, the name of the
     hypothesis that alarmed first (None: none), from CUSUM statistics name -> (B, T)."""
@@ -257,13 +455,18 @@ def first_alarms(stats: dict, h: dict) -> tuple[np.ndarray, list]:
 
 
 def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float,
-            horizon_s: float | None = None, rows=None, k_stop: int | None = None, size: bool = True) -> dict:
+            horizon_s: float | None = None, rows=None, k_stop: int | None = None, size: bool = True,
+            pairs: bool = True, pair_horizon_s: float | None = PAIR_WINDOW_S) -> dict:
     """Run the reference and the bank for every run (of ``rows``) that alarmed, batched;
     returns run -> Decision. A run's window is [k0, end of the record) or, with ``horizon_s``,
     [k0, alarm + horizon_s], never beyond ``k_stop``. In stages, so that the five filters run
     only as long as a decision needs them: (1) the bank up to the alarm, decided there; (2) for
     runs not yet decided, the bank over the whole window; (3) with ``size``, the decided
-    hypothesis' filter alone over the whole window, whose last estimate is the size."""
+    hypothesis' filter alone over the whole window, whose last estimate is the size; (4) with
+    ``pairs`` (several faults), every single fault and pair restarted after the alarm
+    (:func:`run_pairs`) up to ``pair_horizon_s`` after it (None: the record's end), never
+    beyond ``k_stop``, decided by :func:`decide_pair` with the margin of the same level for
+    ten hypotheses."""
     dt = float(out.t[1] - out.t[0])
     T = out.mean.shape[1]
     k_alarm, who = first_alarms(stats, h)
@@ -297,6 +500,15 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
                     nv = int(one.n_valid[q])
                     decs[i].size = float(one.free[q, 0, nv - 1] - one.healthy[q, 0])
                     decs[i].size_sd = float(one.free_sd[q, 0, nv - 1])
+    if pairs:  # stage 4: every single and pair, restarted after the alarm, one call
+        kp = np.full(len(rows), T, dtype=np.int64)
+        if pair_horizon_s is not None:
+            kp = np.minimum(T, ka + int(round(pair_horizon_s / dt)) + 1)
+        if k_stop is not None:
+            kp = np.minimum(kp, k_stop)
+        pb = run_pairs(out, ref, bank, rows, kp, [best_single(d) for d in decs])
+        for i, d in enumerate(decs):
+            decide_pair(pb, i, margin_for(margin_level(margin), len(MULTI)), d)
     return {int(b): decs[i] for i, b in enumerate(rows)}
 
 

@@ -60,7 +60,9 @@ def _bank_decisions(out, st, th: Thresholds, first: np.ndarray, faulty: bool) ->
     Computed only where it can change a metric: in fault runs whose first alarm is within
     [ONSET, ONSET + 1 s], with the data cut at ONSET + 1 s. (Healthy runs count any alarm; a
     decision is causal, tests/test_fdi_isolate.py, so the cut changes no decision that counts,
-    and the bank then costs about the filter's time again instead of three times.)"""
+    and the bank then costs about the filter's time again instead of three times. The
+    several-faults stage is not run: its verdict comes isolate.PAIR_WINDOW_S after the alarm,
+    after the 1 s the tune scores.)"""
     n = out.mean.shape[0]
     iso_h = np.full(n, -1, dtype=np.int64)
     iso_k = np.full(n, -1, dtype=np.int64)
@@ -70,7 +72,7 @@ def _bank_decisions(out, st, th: Thresholds, first: np.ndarray, faulty: bool) ->
     if len(rows):
         k_ready = int(round((th.warmup_s + th.baseline_s) / DT))
         decs = isolate.isolate(out, st, th.h, k_ready, isolate.margin_for(th.false_isolation_level),
-                               rows=rows, k_stop=k_end + 1, size=False)
+                               rows=rows, k_stop=k_end + 1, size=False, pairs=False)
         for b, d in decs.items():
             if d.hypothesis is not None:
                 iso_h[b] = HYP.index(isolate.hypothesis_name(d.hypothesis, d.size))

@@ -159,3 +159,81 @@ def test_compiled_cusum_and_vectorised_nis_run_equal_the_loops():
         run = np.where(hi[:, k], run + 1, 0)
         first[(run >= 50) & (first < 0)] = k
     assert np.array_equal(nis_alarm(out, th), first) and first[2] == -1 and first[0] > 0
+
+
+# --- several faults (pairs) -----------------------------------------------------------------
+
+PAIR_DURATION_S = 6.5
+#: (faults: name -> size) of the several-faults runs; the first two are pairs
+PAIR_CASES = ({"K_int": lpm(0.5), "K_extB": lpm(0.5)}, {"K_int": lpm(0.5), "offset": -0.02},
+              {"K_int": lpm(0.5)}, {"K_extA": lpm(0.5)}, {"K_extB": lpm(0.5)}, {"offset": 0.01})
+
+
+@pytest.fixture(scope="module")
+def pair_decisions():
+    """Nominal plant, sine 3 V 0.25 Hz, 494 kg, faults stepping in at 2 s, a CUSUM crossing
+    its threshold 0.5 s after the onset; isolate() with the several-faults stage (window
+    PAIR_WINDOW_S after the alarm, within the 6.5 s record)."""
+    p = load_plant().vector()
+    t = np.arange(int(PAIR_DURATION_S / DT) + 1) * DT
+    u = input_signal("sine", t, amplitude=3.0, frequency=0.25)
+    n = len(PAIR_CASES)
+    faults = {name: np.zeros((n, len(t))) for name in ("K_int", "K_extA", "K_extB", "offset")}
+    for i, case in enumerate(PAIR_CASES):
+        for name, size in case.items():
+            faults[name][i] = profile("step", size, t, t0=ONSET_S)
+    runs = simulate_runs(np.tile(p, (n, 1)), u, DT, faults=faults, seed=21)
+    out = run_filter(runs.inp, FilterConfig())
+    g = np.where(t > ONSET_S, (t - ONSET_S) / 0.5, 0.0)
+    stats = {"K_int": np.tile(g, (n, 1))}
+    decs = iso.isolate(out, stats, {"K_int": 1.0}, int(1.5 / DT), iso.margin_for(), horizon_s=iso.DECISION_WINDOW_S)
+    decs["out"], decs["stats"] = out, stats
+    return decs
+
+
+def test_pair_margin_is_the_same_rule_for_ten_hypotheses():
+    m = iso.margin_for(0.01, len(iso.MULTI))
+    assert len(iso.MULTI) == 10 and m == pytest.approx(math.log(9 * 99))
+    assert iso.margin_level(iso.margin_for()) == pytest.approx(0.01)
+    assert iso.free_states("K_extB+K_int") == (iso.I_KEXTB, iso.I_KINT)
+    with pytest.raises(ValueError):
+        iso.free_states("K_int+K_int")
+
+
+def test_combined_faults_are_named_as_both_and_sized(pair_decisions):
+    """K_int 0.5 + K_extB 0.5 L/min (the single bank takes it for K_extA) and K_int 0.5 L/min +
+    offset -2 % are named as both, each member within 0.05 L/min or 0.1 % of the truth."""
+    for i, case in enumerate(PAIR_CASES[:2]):
+        d = pair_decisions[i]
+        assert sorted(d.several) == sorted(case), (case, d.several, d.pair_llr)
+        for name, size in case.items():
+            got, want = d.several_size[name], size
+            tol = 0.05 * K_PER_LPM if name.startswith("K_") else 0.001
+            assert got == pytest.approx(want, abs=tol), (name, got, want)
+        assert max(d.pair_llr.values()) > iso.margin_for(0.01, len(iso.MULTI))
+
+
+def test_single_fault_is_not_named_as_a_pair(pair_decisions):
+    """Each single fault: no pair beats the best single by the margin (the pairs' evidence is
+    at most +0.1 nats above it here), and the single decision is unchanged."""
+    for i, case in enumerate(PAIR_CASES[2:], start=2):
+        d = pair_decisions[i]
+        (name,) = case
+        assert d.several == [] and d.pair_candidates == [], (case, d.pair_llr)
+        assert d.hypothesis == name
+        assert max(d.pair_llr.values()) < 1.0
+
+
+def test_diagnosis_names_several_faults(pair_decisions):
+    """The diagnosis of an accepted pair: status "several faults", both members (offset side
+    from its sign) with sizes in L/min and %, and the decision PAIR_WINDOW_S after the alarm."""
+    from fdi.detect import Thresholds, diagnose
+    out, stats = pair_decisions["out"], pair_decisions["stats"]
+    th = Thresholds.shipped()
+    d = diagnose(out, th, 1, stats, decision=pair_decisions[1])
+    assert d.status == "several faults" and sorted(d.isolated) == ["K_int", "offset-"]
+    assert d.size["K_int"]["value"] == pytest.approx(0.5, abs=0.05)
+    assert d.size["offset-"]["value"] == pytest.approx(-2.0, abs=0.1)
+    assert d.isolation_time_s == pytest.approx(ONSET_S + 0.5 + iso.PAIR_WINDOW_S, abs=2 * DT)
+    single = diagnose(out, th, 2, stats, decision=pair_decisions[2])
+    assert single.status == "fault" and single.isolated == ["K_int"]
