@@ -39,6 +39,9 @@ def add_commands(subparsers) -> None:
                    help="filter configuration to derive the thresholds for (a name in fdi.ukf.PRESETS: shipped, calibrated, "
                         "calibrated_qn_frozen, calibrated_softfreeze, calibrated_kint3, calibrated_softfreeze_kint3); "
                         "replay and tune then run the filter the thresholds file names")
+    g.add_argument("--detector", default="cusum", choices=("cusum", "glr"),
+                   help="alarm source the file is for: cusum (default) or glr (also derives the GLR thresholds from "
+                        "the nuisance GSA's healthy runs; tune then alarms on the GLR)")
     g.add_argument("--out", required=True, help="output folder: thresholds.toml, thresholds.md, thresholds_gsa.json")
     g.set_defaults(func=_thresholds)
 
@@ -81,7 +84,7 @@ def _thresholds(args) -> int:
     if args.filter not in PRESETS:
         raise UserError(f"--filter: unknown filter {args.filter!r}; known: {', '.join(PRESETS)}")
     th, report = compute_thresholds(_plant(args), N_leak=args.n_leak, N_nuisance=args.n_nuisance,
-                                    workers=args.workers, filter=args.filter)
+                                    workers=args.workers, filter=args.filter, detector=args.detector)
     print(describe(th))
     for p in write_thresholds(th, report, Path(args.out)):
         print(f"wrote {p}")

@@ -96,6 +96,11 @@ class Thresholds:
     #: "likelihood": also test every pair of faults after the alarm (fdi.isolate.run_pairs,
     #: session 7) so that several simultaneous faults are named
     several_faults: bool = True
+    #: alarm source: "cusum" (the change test on the estimates) or "glr" (fdi.glr: scheduled
+    #: banks, the best fault's log-likelihood lead over "no change"; session 7, an option)
+    detector: str = "cusum"
+    #: "glr": threshold per fault hypothesis [nats], from the nuisance GSA's healthy runs
+    glr_h: dict = field(default_factory=dict)
 
     @classmethod
     def load(cls, path: str | Path) -> "Thresholds":

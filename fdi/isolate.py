@@ -235,8 +235,17 @@ def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndar
     n = len(rows)
     per_run = isinstance(hypotheses, list)
     names = [tuple(h) for h in hypotheses] if per_run else [tuple(hypotheses)] * n
-    cols, rel = param_layout(det)
-    sc = state_scale(det)[:N_AUG]
+    params, z0, var = seed_from(ref, inp, rows, k0, ref_rows)
+    return _run_hypotheses(inp, bank_config(det), rows, k0, k1, params, z0, var, names, per_run)
+
+
+def seed_from(ref: FilterOutput, inp, rows: np.ndarray, k0: np.ndarray, ref_rows: np.ndarray):
+    """Start of bank filters from row ref_rows[i] of ``ref`` at sample k0[i]: the parameter rows
+    (n, len(P)) of runs ``rows`` with ref's calibration values written in, and the scaled
+    means and diagonal variances (n, N_AUG) of its first N_AUG states."""
+    cols, rel = param_layout(ref.config)
+    sc = state_scale(ref.config)[:N_AUG]
+    n = len(rows)
     params = np.empty((n, inp.params.shape[1]))
     z0 = np.empty((n, N_AUG))
     var = np.empty((n, N_AUG))
@@ -248,7 +257,7 @@ def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndar
                 params[i, cols[a]] = inp.params[b, cols[a]] * (1.0 + max(mean[N_MODEL + a], -0.95))
         z0[i] = mean[:N_AUG] / sc
         var[i] = (ref.std[ref_rows[i], ka, :N_AUG] / sc) ** 2
-    return _run_hypotheses(inp, bank_config(det), rows, k0, k1, params, z0, var, names, per_run)
+    return params, z0, var
 
 
 def _run_hypotheses(inp, cfg: FilterConfig, rows, k0, k1, params, z0, var, names: list, per_run: bool) -> BankResult:

@@ -137,7 +137,18 @@ def _nuisance_params(X: np.ndarray) -> np.ndarray:
 def _nuisance_model(X: np.ndarray, th: Thresholds):
     out = _run_rows(_nuisance_params(X), X[:, -2], X[:, -1], filter_name=th.filter)
     dev, sd, reg = _dev(out, th)
-    return _regime_stat(dev, reg, th.warmup_s + th.baseline_s, "rms"), (dev, sd, reg)
+    return _regime_stat(dev, reg, th.warmup_s + th.baseline_s, "rms"), (dev, sd, reg, _glr_maxima(out, th))
+
+
+def _glr_maxima(out, th: Thresholds):
+    """(n, 4) per-run maxima of the GLR statistics (fdi.glr) of the healthy runs in ``out``
+    after the baseline window, in FAULTS order; None unless th.detector == "glr"."""
+    if th.detector != "glr":
+        return None
+    from .glr import glr_statistics
+
+    g = glr_statistics(out, None, int(round((th.warmup_s + th.baseline_s) / DT)))
+    return np.stack([v.max(axis=1) for v in g.values()], axis=1)
 
 
 def _problems():
@@ -189,15 +200,18 @@ def _gumbel_quantile(x: np.ndarray, p: float) -> float:
 
 def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = 32, seed: int = 2011,
                        workers: int = 1, fa_level: float = FA_LEVEL, drift: float = 1.0,
-                       filter: str = "shipped") -> tuple[Thresholds, dict]:
-    """Run both studies and derive the thresholds. Returns (thresholds, report)."""
+                       filter: str = "shipped", detector: str = "cusum") -> tuple[Thresholds, dict]:
+    """Run both studies and derive the thresholds. Returns (thresholds, report). With
+    ``detector="glr"`` the nuisance GSA's healthy runs also give the GLR thresholds
+    (:func:`fdi.glr.glr_threshold`, level alpha / 4 per fault hypothesis: Bonferroni over the
+    four statistics, the rule of the CUSUM thresholds)."""
     import warnings
 
     from gsa import analyze, saltelli_design
 
     _init(plant.vector())
     preset(filter)  # a known filter name
-    th0 = replace(Thresholds(), drift=drift, filter=filter)
+    th0 = replace(Thresholds(), drift=drift, filter=filter, detector=detector)
     lp, npb = _problems()
     names = output_names()
     with warnings.catch_warnings():
@@ -263,6 +277,12 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = 32, see
                  source=(f"samfdi fdi thresholds: leakage GSA N={N_leak} ({d_leak.n_runs} runs), nuisance GSA "
                          f"N={N_nuisance} ({d_nui.n_runs} runs), seed {seed}"
                          + ("" if filter == "shipped" else f", filter {filter}")))
+    if detector == "glr":
+        from .glr import glr_threshold
+        from .isolate import FAULTS
+
+        gmax = np.concatenate([p[1][3] for p in parts])
+        th = replace(th, glr_h={f: glr_threshold(gmax[:, i], fa_level / len(FAULTS)) for i, f in enumerate(FAULTS)})
     ranking = {nm: r_nui.ranked_factors(nm)[:3] for nm in names}
     st_nui = {nm: {f: float(np.nan_to_num(r_nui.ST[i, j])) for i, f in enumerate(r_nui.factor_names)}
               for j, nm in enumerate(names)}
@@ -272,6 +292,8 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = 32, see
               "healthy_maxima_quantiles": {k: [float(np.quantile(v, 0.5)), float(np.quantile(v, 0.99)),
                                                float(np.max(v))] for k, v in maxima.items()},
               "n_runs": {"leakage": d_leak.n_runs, "nuisance": d_nui.n_runs},
+              "glr_healthy_maxima_quantiles": ({} if detector != "glr" else {
+                  f: [float(np.quantile(gmax[:, i], q)) for q in (0.5, 0.9, 0.99, 1.0)] for i, f in enumerate(FAULTS)}),
               "narrowed_ranges": {**{k: f"+-{100 * v:g} %" for k, v in NARROWED.items()}, "m_L": "0-800 kg"}}
     return th, report
 

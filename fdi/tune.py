@@ -36,11 +36,13 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed):
     maxima of g/h before the onset, within 1 s after it, and over the run."""
     runs = make_batch(plant, n, seed, fault=fault, size=size, duration=DURATION, onset=ONSET)
     out = run_filter(runs.inp, preset(th.filter))
-    st = statistics(out, th)
+    st, th = _alarm_statistics(out, th)
     k0, k1 = int(ONSET / DT), int((ONSET + 1.0) / DT) + 1
     first = np.full((n, len(HYP)), -1, dtype=np.int64)
     mx = np.zeros((n, len(HYP), 3))
     for i, h in enumerate(HYP):
+        if h not in st:  # "glr": one offset statistic, in the offset+ column
+            continue
         r = st[h] / th.h[h]
         above = r > 1.0
         first[:, i] = np.where(above.any(axis=1), np.argmax(above, axis=1), -1)
@@ -51,6 +53,22 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed):
     if th.isolation == "likelihood":
         res.update(_bank_decisions(out, st, th, first, fault is not None))
     return res
+
+
+def _alarm_statistics(out, th: Thresholds):
+    """The alarm statistics name -> (B, T) and the thresholds whose ``h`` they are compared
+    with: the CUSUMs of fdi.detect, or with ``th.detector == "glr"`` the GLR statistics of
+    fdi.glr under the HYP names (offset as "offset+") with h = th.glr_h."""
+    if th.detector != "glr":
+        return statistics(out, th), th
+    from dataclasses import replace
+
+    from .glr import glr_statistics
+
+    g = glr_statistics(out, None, int(round((th.warmup_s + th.baseline_s) / DT)))
+    names = {"offset": "offset+"}
+    return ({names.get(k, k): v for k, v in g.items()},
+            replace(th, h={names.get(k, k): v for k, v in th.glr_h.items()}))
 
 
 def _bank_decisions(out, st, th: Thresholds, first: np.ndarray, faulty: bool) -> dict:
