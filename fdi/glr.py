@@ -8,8 +8,9 @@ This detector uses that directly, causally and at bounded cost:
   is in exactly one window, so the cost is the bank's five 12-state filters once over the
   monitored part of the record);
 * every window starts from the DETECTION filter at k_j (model states, variances, the
-  calibration values written into the parameter vector) with the fault parameters at the run's
-  healthy baseline (:func:`fdi.detect.baseline_values`, the CUSUM's reference too), and runs
+  calibration values written into the parameter vector, the fault parameters at its current
+  estimates: "none" = no change since k_j; optionally at a healthy ``baseline`` instead, which
+  measured the same healthy tail on 20 development runs), and runs
   the bank of :mod:`fdi.isolate` (none, K_int, K_extA, K_extB, offset; faults constant, the
   free one with its prior); all windows of all runs are ONE :func:`fdi.ukf.run_filter` call;
 * statistic g(k) = max(0, max_H L_H(k) - L_none(k)), the log-likelihood ratio of the best
@@ -43,11 +44,12 @@ def window_starts(T: int, k_ready: int, dt: float, restart_s: float = RESTART_S)
     return np.arange(k_ready, T, max(1, int(round(restart_s / dt))), dtype=np.int64)
 
 
-def glr_statistics(out: FilterOutput, baseline: np.ndarray, k_ready: int, window_s: float = WINDOW_S,
+def glr_statistics(out: FilterOutput, baseline: np.ndarray | None, k_ready: int, window_s: float = WINDOW_S,
                    restart_s: float = RESTART_S) -> dict:
     """Fault name -> g_H (B, T) [nats] of the detection output ``out`` (its ``inp`` is needed):
     per window (:func:`window_starts`), max(0, L_H - L_none) from the window's start; 0 before
-    k_ready. ``baseline`` (B, 4): healthy values of K_int, K_extA, K_extB, offset (SI). One
+    k_ready. ``baseline`` (B, 4) or None: healthy values of K_int, K_extA, K_extB, offset (SI)
+    held in every window (None: the detection filter's estimates at the window's start). One
     batched bank call for all windows of all runs."""
     B, T = out.mean.shape[:2]
     dt = float(out.t[1] - out.t[0])
