@@ -101,6 +101,9 @@ class Thresholds:
     detector: str = "cusum"
     #: "glr": threshold per fault hypothesis [nats], from the nuisance GSA's healthy runs
     glr_h: dict = field(default_factory=dict)
+    #: "glr": s after the baseline window before the first GLR window (the detection filter's
+    #: calibration states are still converging right after it)
+    glr_start_s: float = 0.0
 
     @classmethod
     def load(cls, path: str | Path) -> "Thresholds":
