@@ -104,6 +104,8 @@ class Thresholds:
     #: "glr": s after the baseline window before the first GLR window (the detection filter's
     #: calibration states are still converging right after it)
     glr_start_s: float = 0.0
+    #: "glr": window length [s] (restarted every fdi.glr.RESTART_S; longer windows overlap)
+    glr_window_s: float = 0.5
 
     @classmethod
     def load(cls, path: str | Path) -> "Thresholds":

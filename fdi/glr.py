@@ -78,7 +78,7 @@ def glr_statistics(out: FilterOutput, baseline: np.ndarray | None, k_ready: int,
     for h in FAULTS:
         lead = np.maximum(ll[:, list(BANK).index(h)] - none, 0.0)
         for i, (b, a, e) in enumerate(zip(rows, k0, k1)):
-            g[h][b, a:e] = lead[i, :e - a]
+            g[h][b, a:e] = np.maximum(g[h][b, a:e], lead[i, :e - a])  # overlapping windows: the larger
     return g
 
 

@@ -147,7 +147,8 @@ def _glr_maxima(out, th: Thresholds):
         return None
     from .glr import glr_statistics
 
-    g = glr_statistics(out, None, int(round((th.warmup_s + th.baseline_s + th.glr_start_s) / DT)))
+    g = glr_statistics(out, None, int(round((th.warmup_s + th.baseline_s + th.glr_start_s) / DT)),
+                       window_s=th.glr_window_s)
     return np.stack([v.max(axis=1) for v in g.values()], axis=1)
 
 
@@ -200,8 +201,8 @@ def _gumbel_quantile(x: np.ndarray, p: float) -> float:
 
 def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = 32, seed: int = 2011,
                        workers: int = 1, fa_level: float = FA_LEVEL, drift: float = 1.0,
-                       filter: str = "shipped", detector: str = "cusum", glr_start_s: float = 0.0
-                       ) -> tuple[Thresholds, dict]:
+                       filter: str = "shipped", detector: str = "cusum", glr_start_s: float = 0.0,
+                       glr_window_s: float = 0.5) -> tuple[Thresholds, dict]:
     """Run both studies and derive the thresholds. Returns (thresholds, report). With
     ``detector="glr"`` the nuisance GSA's healthy runs also give the GLR thresholds
     (:func:`fdi.glr.glr_threshold`, level alpha / 4 per fault hypothesis: Bonferroni over the
@@ -212,7 +213,8 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = 32, see
 
     _init(plant.vector())
     preset(filter)  # a known filter name
-    th0 = replace(Thresholds(), drift=drift, filter=filter, detector=detector, glr_start_s=glr_start_s)
+    th0 = replace(Thresholds(), drift=drift, filter=filter, detector=detector, glr_start_s=glr_start_s,
+                  glr_window_s=glr_window_s)
     lp, npb = _problems()
     names = output_names()
     with warnings.catch_warnings():

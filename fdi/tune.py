@@ -65,7 +65,8 @@ def _alarm_statistics(out, th: Thresholds):
 
     from .glr import glr_statistics
 
-    g = glr_statistics(out, None, int(round((th.warmup_s + th.baseline_s + th.glr_start_s) / DT)))
+    g = glr_statistics(out, None, int(round((th.warmup_s + th.baseline_s + th.glr_start_s) / DT)),
+                       window_s=th.glr_window_s)
     names = {"offset": "offset+"}
     return ({names.get(k, k): v for k, v in g.items()},
             replace(th, h={names.get(k, k): v for k, v in th.glr_h.items()}))
