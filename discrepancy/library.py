@@ -89,7 +89,7 @@ def calibration_params(plant: Plant) -> tuple[Free, ...]:
         for name in ("Q_N_PA", "Q_N_BT", "Q_N_PB", "Q_N_AT")
     ]
     out.append(Free("B_eff", plant.fluid.B_eff / 5, plant.fluid.B_eff * 4, True, "MPa", "bulk modulus"))
-    out.append(Free("offset", -0.05, 0.05, False, "", "spool offset"))
+    out.append(Free("offset", -0.05, 0.05, False, "%", "spool offset (of full travel)"))
     return tuple(out)
 
 
