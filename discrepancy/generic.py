@@ -24,55 +24,30 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from sam import P, S
-from sam.dynamics import N_DERIVED, N_STATES, derive, rhs
 
 from .data import Prepared
 from .fitting import FitResult, Model, Split, evaluate, fit
 from .library import Free
 from .simulation import fits
-from .unknown_input import TARGETS as UI_TARGETS
-from .unknown_input import (Regression, calibration_nuisance, estimate_n_eff, estimate_unknown_inputs,
-                            input_sensitivity, lag_like_estimate, sparse_regression)
-
-TARGETS = {"Q_dA": "m^3/s", "Q_dB": "m^3/s", "F_d": "N"}
-
-
-@numba.njit(cache=True)
-def _rates(states, u, p, idx_dist, delta):
-    """Model rates ds/dt at each given state, and the sensitivity of ds/dt to a disturbance input."""
-    n = states.shape[0]
-    d = np.empty(N_DERIVED)
-    derive(p, d)
-    ds = np.empty(N_STATES)
-    ds2 = np.empty(N_STATES)
-    out = np.empty((n, N_STATES))
-    sens = np.empty((n, N_STATES))
-    q = p.copy()
-    q[idx_dist] += delta
-    for k in range(n):
-        rhs(states[k], u[k], p, d, ds)
-        rhs(states[k], u[k], q, d, ds2)
-        for j in range(N_STATES):
-            out[k, j] = ds[j]
-            sens[k, j] = (ds2[j] - ds[j]) / delta
-    return out, sens
+from .unknown_input import (STATE_COL, TARGETS, Regression, calibration_nuisance, estimate_n_eff,
+                            estimate_unknown_inputs, input_sensitivity, lag_like_estimate, model_rate,
+                            sparse_regression)
 
 
 def estimate_disturbances(data: Prepared, params: np.ndarray, z: np.ndarray) -> dict[str, np.ndarray]:
-    """Equation-error estimates of Q_dA, Q_dB [m^3/s] and F_d [N] at every sample."""
+    """Equation-error estimates of Q_dA, Q_dB [m^3/s] and F_d [N] at every sample (the score-test
+    route): what the measured rate needs beyond the model's own rate, through the model's sensitivity."""
     sm = data.smooth
-    st = np.column_stack([sm["pA"], sm["pB"], data.x_s, data.dx_s, sm["x"], sm["v"], z])
-    st = np.ascontiguousarray(st)
+    st = np.ascontiguousarray(np.column_stack([sm["pA"], sm["pB"], data.x_s, data.dx_s, sm["x"], sm["v"], z]))
     u = np.ascontiguousarray(data.u)
     out = {}
-    for name, col, meas, delta in (("Q_dA", 0, sm["dpA"], 1e-6), ("Q_dB", 1, sm["dpB"], 1e-6), ("F_d", 5, sm["a"], 100.0)):
-        rate, sens = _rates(st, u, params, int(P[name]), delta)
-        s = sens[:, col]
-        out[name] = np.where(np.abs(s) > 0, (meas - rate[:, col]) / np.where(s == 0, 1, s), 0.0)
+    for name, meas in (("Q_dA", sm["dpA"]), ("Q_dB", sm["dpB"]), ("F_d", sm["a"])):
+        rate = model_rate(st, u, params, int(STATE_COL[name]))
+        sens = input_sensitivity(st, u, params, name)
+        out[name] = np.where(np.abs(sens) > 0, (meas - rate) / np.where(sens == 0, 1, sens), 0.0)
     return out
 
 
@@ -280,7 +255,7 @@ def _rank_by_ukf(data: Prepared, final: FitResult, calib, cands, p_S: float, out
     feats = features_at(st[:, S.p_A], st[:, S.p_B], st[:, S.v], st[:, S.x], st[:, S.x_s], p_S)
     coef = [c for _, c, _ in cands]
     single, selected, summary = [], set(), {}
-    for tname in UI_TARGETS:
+    for tname in TARGETS:
         reg = _regress_target(tname, ui, feats, cands, data, final, calib, idx)
         e = ui.est[tname][idx]
         summary[tname] = {"mean": float(np.mean(e)), "rms": float(np.sqrt(np.mean(e ** 2))),
@@ -294,7 +269,7 @@ def _rank_by_ukf(data: Prepared, final: FitResult, calib, cands, p_S: float, out
                 coef[i] = c if c != 0 else coef[i]
                 if d < -BIC_STRONG:
                     single.append((d, i))
-    out["disturbance_rms"] = {k: summary[k]["rms"] for k in UI_TARGETS}
+    out["disturbance_rms"] = {k: summary[k]["rms"] for k in TARGETS}
     out["unknown_inputs"] = summary
     single.sort()
     order = [i for _, i in single]

@@ -149,21 +149,21 @@ def lag_like_estimate(y, tau, dt):
 
 
 @numba.njit(cache=True)
+def model_rate(states, u, p, col):
+    """d state[col]/dt (T,) of the model (:func:`sam.dynamics.rhs`) at each state (T, 7), input u (T,) [V]."""
+    d = np.empty(N_DERIVED)
+    derive(p, d)
+    ds = np.empty(N_STATES)
+    out = np.empty(states.shape[0])
+    for k in range(states.shape[0]):
+        rhs(states[k], u[k], p, d, ds)
+        out[k] = ds[col]
+    return out
+
+
 def _rate_changes(states, u, p, q, col):
     """Change of d state[col]/dt (T,) between parameter vectors p and q at each state (T, 7)."""
-    n = states.shape[0]
-    dp_ = np.empty(N_DERIVED)
-    dq_ = np.empty(N_DERIVED)
-    derive(p, dp_)
-    derive(q, dq_)
-    a = np.empty(N_STATES)
-    b = np.empty(N_STATES)
-    out = np.empty(n)
-    for k in range(n):
-        rhs(states[k], u[k], p, dp_, a)
-        rhs(states[k], u[k], q, dq_, b)
-        out[k] = b[col] - a[col]
-    return out
+    return model_rate(states, u, q, col) - model_rate(states, u, p, col)
 
 
 def _changed(params: np.ndarray, name: str, step: float) -> np.ndarray:
