@@ -31,6 +31,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from sam.errors import did_you_mean
+
 from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, FilterOutput, leak_lpm
 
 #: Fault hypotheses and the state each one reads (sign: +1 above healthy, -1 below).
@@ -51,6 +53,10 @@ REGIMES = ("hold", "extend-transient", "extend-steady", "retract-transient", "re
 #: Fault parameter behind each change residual, and the hypotheses it serves.
 PARAMS = {"K_int": I_KINT, "K_extA": I_KEXTA, "K_extB": I_KEXTB, "offset": I_OFFSET}
 SHIPPED_THRESHOLDS = Path(__file__).resolve().parents[1] / "scenarios" / "faults" / "thresholds.toml"
+
+
+#: The allowed values of the Thresholds fields that name a method.
+CHOICES = {"isolation": ("signature", "likelihood"), "detector": ("cusum", "glr")}
 
 
 @dataclass(frozen=True)
@@ -117,8 +123,14 @@ class Thresholds:
         else:
             data = json.loads(text)
         data = data.get("thresholds", data)
-        known = {f for f in cls.__dataclass_fields__}
-        return cls(**{k: v for k, v in data.items() if k in known})
+        known = set(cls.__dataclass_fields__)
+        for key in data:
+            if key not in known:
+                raise ValueError(f"unknown key {key!r}{did_you_mean(key, known)}")
+        for key, allowed in CHOICES.items():
+            if key in data and data[key] not in allowed:
+                raise ValueError(f"{key!r} = {data[key]!r} is not one of {', '.join(map(repr, allowed))}")
+        return cls(**data)
 
     @classmethod
     def shipped(cls) -> "Thresholds":

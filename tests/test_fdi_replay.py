@@ -4,6 +4,7 @@ bad input; the CLI never shows a traceback."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -104,6 +105,16 @@ def test_bad_input_messages(tmp_path, capsys):
     write_recording(path3, coarse)
     assert main(["fdi", "replay", str(path3), "--out", str(tmp_path / "c")]) == 2
     assert "sampling step" in capsys.readouterr().err
+    # thresholds file: a mistyped key and an unknown method are named, not silently ignored
+    shipped = (Path(__file__).resolve().parents[1] / "scenarios" / "faults" / "thresholds.toml").read_text()
+    for text, expect in ((shipped.replace("false_isolation_level", "false_isolaton_level"),
+                          "did you mean 'false_isolation_level'"),
+                         (shipped.replace('isolation = "likelihood"', 'isolation = "magic"'), "'isolation' = 'magic'")):
+        th = tmp_path / "th.toml"
+        th.write_text(text)
+        assert main(["fdi", "replay", str(path2), "--thresholds", str(th), "--out", str(tmp_path / "t")]) == 2
+        err = capsys.readouterr().err
+        assert "th.toml" in err and expect in err and "Traceback" not in err
 
 
 def test_small_leak_mid_run_detected_and_isolated():
