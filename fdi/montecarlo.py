@@ -40,19 +40,32 @@ def draw_inputs(n: int, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def make_batch(plant: Plant, n: int, seed: int, *, fault: str | None = None, size: float = 0.0,
-               duration: float = 4.0, dt: float = 1e-3, onset: float = 1.5, nuisance: bool = True):
+               duration: float = 4.0, dt: float = 1e-3, onset: float | np.ndarray = 1.5, nuisance: bool = True):
     """n runs; fault in K_int/K_extA/K_extB (size in L/min) or offset (size in fraction)
-    stepping in at ``onset``. The filter is given the nominal plant with healthy faults."""
+    stepping in at ``onset`` [s]: one time for every run, or an array (n,) of per-run times
+    (run i is healthy for t < onset[i], faulty from the first sample with t >= onset[i]).
+    The filter is given the nominal plant with healthy faults. The onset does not touch the
+    seeded draws (loads, nuisance, inputs, noise), so runs with the same seed are paired
+    whatever their onsets. ``runs.truth`` gets ``"onset_s"`` (n,) and ``"k_onset"`` (n,), the
+    index of run i's first faulty sample (also for healthy runs: where a fault would start)."""
     rng = np.random.default_rng(seed)
     T = int(round(duration / dt)) + 1
     t = np.arange(T) * dt
+    onset_s = np.asarray(onset, dtype=float)
+    if onset_s.ndim == 0:
+        onset_s = np.full(n, float(onset_s))
+    if onset_s.shape != (n,):
+        raise ValueError(f"onset: a float or an array of shape ({n},), got shape {onset_s.shape}")
+    k_onset = np.searchsorted(t, onset_s, side="left").astype(np.int64)  # first k with t[k] >= onset
     truth = draw_truth(plant, n, rng, nuisance)
     u = draw_inputs(n, t, rng)
     faults = None
     if fault is not None:
         value = size if fault == "offset" else lpm(size)
-        faults = {fault: np.tile(profile("step", value, t, t0=onset), (n, 1))}
+        faults = {fault: np.stack([profile("step", value, t, t0=float(o)) for o in onset_s])}
     nominal = np.tile(plant.vector(), (n, 1))
     runs = simulate_runs(truth, u, dt, faults=faults, nominal=nominal, seed=seed + 1)
     runs.truth["m_L_kg"] = truth[:, P.m_L]  #: (B,) the unknown load of each run
+    runs.truth["onset_s"] = onset_s  #: (B,) the fault onset of each run [s]
+    runs.truth["k_onset"] = k_onset  #: (B,) its sample index
     return runs

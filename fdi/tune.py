@@ -5,8 +5,16 @@ sensitivity studies (:mod:`fdi.thresholds`, the shipped
 ``scenarios/faults/thresholds.toml`` or ``--thresholds``), so every healthy run of
 this Monte Carlo is held out from the threshold choice.
 
-Work is split into chunks; each finished chunk is saved to ``DIR/chunks/<name>.npz``
-(a few numbers per run) so an interrupted run resumes where it stopped.
+Each fault run steps in at its own random onset, uniform in [ONSET_MIN, ONSET_MAX] s
+(drawn from the chunk seed by :func:`draw_onsets`, apart from the draws of loads, inputs
+and nuisance, so the runs are paired with those of the fixed-onset tables apart from the
+onset); every window (before the onset, within 1 s of it) is per run. Healthy runs are
+scored over the whole run, as before.
+
+Work is split into chunks; each finished chunk is saved to
+``DIR/chunks/<name>_<seed>_<CHUNK_VERSION>.npz`` (a few numbers per run) so an interrupted
+run resumes where it stopped. The version tag keeps chunks of an older layout (the
+fixed-onset chunks had no tag and no ``k_onset``) from being mixed in.
 """
 
 from __future__ import annotations
@@ -26,18 +34,45 @@ from .ukf import preset, run_filter
 
 FAULT_SIZES = {"K_int": (0.1, 0.25, 0.5, 1.0), "K_extA": (0.1, 0.25, 0.5, 1.0),
                "K_extB": (0.1, 0.25, 0.5, 1.0), "offset": (0.01, -0.01, 0.02, -0.02, 0.05)}
-DURATION, ONSET, CHUNK, DT = 4.0, 1.5, 25, 1e-3
+DURATION, CHUNK, DT = 4.0, 25, 1e-3
+ONSET_MIN, ONSET_MAX = 1.5, 2.5  #: fault onset range [s]; + the 1 s scored ends by 3.5 s < DURATION
+ONSET = ONSET_MIN  #: the nominal onset of healthy runs (their windows are not scored)
+CHUNK_VERSION = "r"  #: chunk file tag: "r" = random onset, per-run k_onset saved
 LOAD_BINS = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))
 HYP = tuple(HYPOTHESES)
 
 
+def draw_onsets(n: int, seed: int) -> np.ndarray:
+    """(n,) fault onsets [s] of a chunk: uniform in [ONSET_MIN, ONSET_MAX], on the sample grid,
+    from their own generator (the chunk seed, 17) so the chunk's other draws are unchanged."""
+    rng = np.random.default_rng((seed, 17))
+    return np.round(rng.uniform(ONSET_MIN, ONSET_MAX, n) / DT) * DT
+
+
 def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed):
     """Filter one chunk; per run and hypothesis: first alarm index (-1: none) and the
-    maxima of g/h before the onset, within 1 s after it, and over the run."""
-    runs = make_batch(plant, n, seed, fault=fault, size=size, duration=DURATION, onset=ONSET)
+    maxima of g/h before the run's onset, within 1 s after it, and over the run; per run
+    the onset index ``k_onset``."""
+    onset = ONSET if fault is None else draw_onsets(n, seed)
+    runs = make_batch(plant, n, seed, fault=fault, size=size, duration=DURATION, onset=onset)
     out = run_filter(runs.inp, preset(th.filter))
     st, th = _alarm_statistics(out, th)
-    k0, k1 = int(ONSET / DT), int((ONSET + 1.0) / DT) + 1
+    k0 = runs.truth["k_onset"]
+    res = _window_maxima(st, th, k0)
+    res.update({"m_L": runs.truth["m_L_kg"], "resets": out.n_cov_reset, "k_onset": k0})
+    if th.isolation == "likelihood":
+        res.update(_bank_decisions(out, st, th, res["first"], k0, fault is not None))
+    return res
+
+
+def _window_maxima(st: dict, th: Thresholds, k0: np.ndarray) -> dict:
+    """Per run b and hypothesis: the first alarm index (-1: none) and the maxima of g/h over
+    [0, k0[b]), [k0[b], k0[b] + 1 s] and the whole run."""
+    k0 = np.asarray(k0, dtype=np.int64)
+    n = len(k0)
+    idx = np.arange(next(iter(st.values())).shape[1])
+    pre = idx[None, :] < k0[:, None]
+    post = (idx[None, :] >= k0[:, None]) & (idx[None, :] <= k0[:, None] + int(round(1.0 / DT)))
     first = np.full((n, len(HYP)), -1, dtype=np.int64)
     mx = np.zeros((n, len(HYP), 3))
     for i, h in enumerate(HYP):
@@ -46,13 +81,10 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed):
         r = st[h] / th.h[h]
         above = r > 1.0
         first[:, i] = np.where(above.any(axis=1), np.argmax(above, axis=1), -1)
-        mx[:, i, 0] = r[:, :k0].max(axis=1)
-        mx[:, i, 1] = r[:, k0:k1].max(axis=1)
+        mx[:, i, 0] = np.where(pre, r, -np.inf).max(axis=1)
+        mx[:, i, 1] = np.where(post, r, -np.inf).max(axis=1)
         mx[:, i, 2] = r.max(axis=1)
-    res = {"first": first, "max": mx, "m_L": runs.truth["m_L_kg"], "resets": out.n_cov_reset}
-    if th.isolation == "likelihood":
-        res.update(_bank_decisions(out, st, th, first, fault is not None))
-    return res
+    return {"first": first, "max": mx}
 
 
 def _alarm_statistics(out, th: Thresholds):
@@ -72,26 +104,32 @@ def _alarm_statistics(out, th: Thresholds):
             replace(th, h={names.get(k, k): v for k, v in th.glr_h.items()}))
 
 
-def _bank_decisions(out, st, th: Thresholds, first: np.ndarray, faulty: bool) -> dict:
+def _bank_decisions(out, st, th: Thresholds, first: np.ndarray, k_onset: np.ndarray,
+                    faulty: bool) -> dict:
     """Likelihood isolation, per run: the isolated hypothesis (index in HYP, -1: none or not
     isolable) and the sample of the decision (-1: none).
 
     Computed only where it can change a metric: in fault runs whose first alarm is within
-    [ONSET, ONSET + 1 s], with the data cut at ONSET + 1 s. (Healthy runs count any alarm; a
-    decision is causal, tests/test_fdi_isolate.py, so the cut changes no decision that counts,
-    and the bank then costs about the filter's time again instead of three times. The
-    several-faults stage is not run: its verdict comes isolate.PAIR_WINDOW_S after the alarm,
-    after the 1 s the tune scores.)"""
+    [onset, onset + 1 s] of the run's own onset, with the run's data cut at onset + 1 s.
+    (Healthy runs count any alarm; a decision is causal, tests/test_fdi_isolate.py, so the
+    cut changes no decision that counts, and the bank then costs about the filter's time
+    again instead of three times. The several-faults stage is not run: its verdict comes
+    isolate.PAIR_WINDOW_S after the alarm, after the 1 s the tune scores.)"""
     n = out.mean.shape[0]
     iso_h = np.full(n, -1, dtype=np.int64)
     iso_k = np.full(n, -1, dtype=np.int64)
-    k_on, k_end = int(ONSET / DT), int((ONSET + 1.0) / DT)
+    k_on = np.asarray(k_onset, dtype=np.int64)
+    k_end = k_on + int(round(1.0 / DT))
     any_first = np.where(first >= 0, first, np.iinfo(np.int64).max).min(axis=1)
     rows = np.flatnonzero((any_first >= k_on) & (any_first <= k_end)) if faulty else np.array([], dtype=np.int64)
+    # isolate.isolate keeps the rows (in order) whose first alarm it finds; its k_stop may be an
+    # array over those rows (it is only used in np.minimum), so align it with them
+    k_alarm, _ = isolate.first_alarms(st, th.h)
+    rows = rows[k_alarm[rows] >= 0]
     if len(rows):
         k_ready = int(round((th.warmup_s + th.baseline_s) / DT))
         decs = isolate.isolate(out, st, th.h, k_ready, isolate.margin_for(th.false_isolation_level),
-                               rows=rows, k_stop=k_end + 1, size=False, pairs=False)
+                               rows=rows, k_stop=k_end[rows] + 1, size=False, pairs=False)
         for b, d in decs.items():
             if d.hypothesis is not None:
                 iso_h[b] = HYP.index(isolate.hypothesis_name(d.hypothesis, d.size))
@@ -118,12 +156,16 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
     th = Thresholds.shipped() if thresholds is None else thresholds
     (out_dir / "thresholds_used.json").write_text(th.to_json() + "\n")
     jobs = _jobs(n_runs)
-    todo = [j for j in jobs if not (chunk_dir / f"{j[0]}_{j[4]}.npz").exists()]
+    old = [p for p in chunk_dir.glob("*.npz") if not p.stem.endswith(f"_{CHUNK_VERSION}")]
+    if old and progress:
+        print(f"fdi tune: ignoring {len(old)} chunk file(s) of an older layout in {chunk_dir} "
+              f"(not {CHUNK_VERSION!r}: fixed onset)")
+    todo = [j for j in jobs if not _chunk_path(chunk_dir, j).exists()]
     from tqdm import tqdm
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="fdi tune", unit="chunk", disable=not progress)
 
     def save(job, res):
-        np.savez(chunk_dir / f"{job[0]}_{job[4]}.npz", **res)
+        np.savez(_chunk_path(chunk_dir, job), **res)
         bar.update(1)
 
     t0 = time.perf_counter()
@@ -158,9 +200,13 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
     return metrics
 
 
+def _chunk_path(chunk_dir: Path, job) -> Path:
+    return Path(chunk_dir) / f"{job[0]}_{job[4]}_{CHUNK_VERSION}.npz"
+
+
 def _load(chunk_dir, jobs, name):
-    parts = [np.load(chunk_dir / f"{j[0]}_{j[4]}.npz") for j in jobs if j[0] == name]
-    keys = ("first", "max", "m_L") + (("iso_h", "iso_k") if all("iso_h" in p for p in parts) else ())
+    parts = [np.load(_chunk_path(chunk_dir, j)) for j in jobs if j[0] == name]
+    keys = ("first", "max", "m_L", "k_onset") + (("iso_h", "iso_k") if all("iso_h" in p for p in parts) else ())
     return {k: np.concatenate([p[k] for p in parts]) for k in keys}
 
 
@@ -179,11 +225,11 @@ def analyse(out_dir: Path, jobs, th: Thresholds) -> dict:
     scales = np.geomspace(0.25, 4, 17)
     roc = {"scale": scales.tolist(), "false_alarm": [float((hmax > s).mean()) for s in scales], "detection": {}}
     rows = []
-    k0 = int(ONSET / DT)
     for fault, sizes in FAULT_SIZES.items():
         for size in sizes:
             name = f"{fault}_{size:g}"
             d = _load(chunk_dir, jobs, name)
+            k0 = d["k_onset"]  # (runs,) each run's own onset
             first = np.where(d["first"] >= 0, d["first"], 10**9)
             any_alarm = first.min(axis=1)
             before = any_alarm < k0  # alarm before the onset: a false alarm, not a detection
@@ -202,7 +248,7 @@ def analyse(out_dir: Path, jobs, th: Thresholds) -> dict:
                 other_within = np.any([(first[:, i] < 10**9) & ((first[:, i] - k0) * DT <= 1.0)
                                        for i in others], axis=0)
                 exclusive = isolated & ~other_within
-            delay = (any_alarm[detected] - k0) * DT
+            delay = (any_alarm[detected] - k0[detected]) * DT
             lb = _load_bin(d["m_L"])
             rows.append({
                 "fault": fault, "size": size, "unit": "%" if fault == "offset" else "L/min", "runs": int(len(first)),
@@ -231,7 +277,9 @@ def analyse(out_dir: Path, jobs, th: Thresholds) -> dict:
              f"Thresholds: {th.source} (not fitted to these runs).", "",
              f"Held-out healthy runs: {len(hmax)} x {DURATION:g} s; false-alarm rate (any alarm per run): {fa:.3f}; "
              "by load " + ", ".join(f"{b}: {v:.3f}" for b, v in zip(bins, fa_by_load)), "",
-             "Fault steps at 1.5 s; 'isolated' = detected within 1 s and "
+             f"Each fault run steps in at its own onset, uniform in [{ONSET_MIN:g}, {ONSET_MAX:g}] s; "
+             "'within 1 s', 'before onset' and the delay are per run from its own onset. "
+             "'isolated' = detected within 1 s and "
              + ("the likelihood bank named the fault by 1 s after the onset (data up to its decision only); "
                 "'exclusive' = the same." if th.isolation == "likelihood" else
                 "the first alarm names the fault; 'exclusive' = no other hypothesis alarmed within that second."), "",

@@ -216,3 +216,104 @@ def test_encoder_quantiser_convention_does_not_matter_for_a_large_leak(conventio
         d = diagnose(out, th, b, st)
         assert d.isolated == ["K_extA"], (d.status, d.alarms)
         assert 2.0 < d.detection_time_s < 3.0
+
+
+def test_tune_make_batch_per_run_onsets():
+    """make_batch with per-run onsets: run i's fault column is 0 before onset[i] and the step
+    value from its first sample at or after onset[i]; the onsets do not touch the seeded draws
+    (loads, inputs, noise): the pressures before the earliest onset equal those of a fixed-onset
+    batch of the same seed."""
+    plant = load_plant()
+    onsets = np.array([0.2, 0.3005, 0.45])
+    r = make_batch(plant, 3, 42, fault="K_extA", size=0.5, duration=0.6, onset=onsets)
+    T = 601
+    assert r.truth["K_extA"].shape == (3, T)
+    np.testing.assert_array_equal(r.truth["onset_s"], onsets)
+    np.testing.assert_array_equal(r.truth["k_onset"], [200, 301, 450])  # 0.3005 s: first sample 0.301 s
+    for i, k in enumerate(r.truth["k_onset"]):
+        col = r.truth["K_extA"][i]
+        assert np.all(col[:k] == 0.0)
+        assert np.all(col[k:] == lpm(0.5))
+    fixed = make_batch(plant, 3, 42, fault="K_extA", size=0.5, duration=0.6, onset=0.45)
+    np.testing.assert_array_equal(fixed.truth["k_onset"], [450, 450, 450])
+    np.testing.assert_array_equal(fixed.truth["m_L_kg"], r.truth["m_L_kg"])
+    np.testing.assert_array_equal(fixed.inp.u, r.inp.u)
+    np.testing.assert_allclose(fixed.inp.pA[:, :200], r.inp.pA[:, :200], rtol=0, atol=0)
+    assert not np.allclose(fixed.inp.pA[0, 300:450], r.inp.pA[0, 300:450])  # run 0 leaks from 0.2 s
+    with pytest.raises(ValueError, match="onset"):
+        make_batch(plant, 3, 42, fault="K_extA", size=0.5, duration=0.6, onset=np.array([0.2, 0.3]))
+
+
+def test_tune_onsets_seeded_uniform_on_grid_and_windows_per_run():
+    """The tune's onsets: seeded by the chunk seed, on the 1 ms grid, in [1.5, 2.5] s; the
+    before / within-1-s maxima of g/h are taken from each run's own onset."""
+    from types import SimpleNamespace
+
+    from fdi import tune
+    a = tune.draw_onsets(2000, 500_000)
+    np.testing.assert_array_equal(a, tune.draw_onsets(2000, 500_000))
+    assert not np.array_equal(a, tune.draw_onsets(2000, 500_001))
+    assert a.min() >= 1.5 and a.max() <= 2.5 and a.min() < 1.51 and a.max() > 2.49
+    np.testing.assert_allclose(a / 1e-3, np.round(a / 1e-3), atol=1e-9)
+    T = 4001
+    g = np.zeros((2, T))
+    g[0, 1999] = 2.0  # run 0 (onset 2.0 s): just before its onset
+    g[1, 1500 + 1000] = 3.0  # run 1 (onset 1.5 s): the last sample of its 1 s window
+    g[1, 2501] = 5.0  # and just after that window
+    w = tune._window_maxima({"K_int": g}, SimpleNamespace(h={h: 1.0 for h in tune.HYP}), np.array([2000, 1500]))
+    i = tune.HYP.index("K_int")
+    np.testing.assert_array_equal(w["max"][:, i, 0], [2.0, 0.0])
+    np.testing.assert_array_equal(w["max"][:, i, 1], [0.0, 3.0])
+    np.testing.assert_array_equal(w["max"][:, i, 2], [2.0, 5.0])
+    np.testing.assert_array_equal(w["first"][:, i], [1999, 2500])
+    assert np.all(w["first"][:, [j for j in range(len(tune.HYP)) if j != i]] == -1)
+
+
+def test_tune_analyse_scores_each_run_from_its_own_onset(tmp_path):
+    """analyse on hand-made chunks: an alarm 1 ms before a run's own onset is an 'alarm before
+    onset' (even though it is after 1.5 s), one 1 ms after it is detected and isolated within
+    1 s, one 1.001 s after it is detected but not within 1 s."""
+    from fdi import tune
+    th = Thresholds.shipped()
+    n, H = 4, len(tune.HYP)
+    ki = tune.HYP.index("K_int")
+    jobs = [("healthy", None, 0.0, n, 1000)] + [(f"{f}_{s:g}", f, s, n, 500_000)
+                                                  for f, sizes in tune.FAULT_SIZES.items() for s in sizes]
+    chunk_dir = tmp_path / "chunks"
+    chunk_dir.mkdir()
+    for j in jobs:
+        first = np.full((n, H), -1, dtype=np.int64)
+        k_on = np.full(n, 1500, dtype=np.int64)
+        iso_h = np.full(n, -1, dtype=np.int64)
+        if j[0] == "K_int_0.25":
+            k_on = np.array([2000, 2400, 1500, 1800])
+            first[:, ki] = [1999, 2401, 1600, 2801]
+            iso_h[:] = ki
+        np.savez(tune._chunk_path(chunk_dir, j), first=first, max=np.zeros((n, H, 3)),
+                 m_L=np.array([100., 300, 600, 700]), k_onset=k_on, iso_h=iso_h,
+                 iso_k=np.where(iso_h >= 0, first[:, ki], -1))
+    m = tune.analyse(tmp_path, jobs, th)
+    row = next(r for r in m["rows"] if r["fault"] == "K_int" and r["size"] == 0.25)
+    assert row["alarm_before_onset"] == 0.25  # run 0
+    assert row["detected_within_1s"] == 0.5  # runs 1 (1 ms) and 2 (100 ms)
+    assert row["isolated_within_1s"] == 0.5
+    assert row["mean_delay_s"] == pytest.approx((0.001 + 0.1 + 1.001) / 3)
+    assert m["false_alarm_rate"] == 0.0
+    assert "uniform in [1.5, 2.5] s" in (tmp_path / "metrics.md").read_text()
+    assert str(tune._chunk_path(chunk_dir, jobs[0])).endswith(f"_{tune.CHUNK_VERSION}.npz")
+
+
+def test_tune_chunk_job_random_onsets_real_runs():
+    """One real fault chunk: each run's onset index comes from its drawn onset, and a 1 L/min
+    external leak A is alarmed after (never before) its own onset, within 1 s, and isolated."""
+    from fdi import tune
+    plant, th = load_plant(), Thresholds.shipped()
+    seed = 500_000 + 10_000
+    res = tune._chunk_job(plant, th, "K_extA", 1.0, 4, seed)
+    k0 = np.round(tune.draw_onsets(4, seed) / 1e-3).astype(int)
+    np.testing.assert_array_equal(res["k_onset"], k0)
+    assert len(set(k0)) == 4
+    ka = np.where(res["first"] >= 0, res["first"], 10**9).min(axis=1)
+    assert np.all(ka >= k0) and np.all(ka - k0 <= 1000), (ka, k0)
+    np.testing.assert_array_equal(res["iso_h"], tune.HYP.index("K_extA"))
+    assert np.all(res["iso_k"] >= k0)
