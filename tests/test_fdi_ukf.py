@@ -7,8 +7,11 @@ import math
 import numpy as np
 import pytest
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sam import P, load_plant, step_batch
+from fdi import ukf
 from fdi.synth import input_signal, lpm, profile, simulate_runs
 from fdi.ukf import (
     N_MODEL, POS_THETA, SCALE, FilterConfig, initial_mean, measurement_variances, noise_vectors,
@@ -257,3 +260,32 @@ def test_runs_of_different_lengths_equal_their_own_runs(plant_vector):
         assert np.max(np.abs(out.mean[b, :nb] - single.mean[0]) / state_scale(out.config)) < 1e-9
         assert np.allclose(out.ll[b, :nb], single.ll[0], rtol=0, atol=1e-9)
         assert np.all(np.isnan(out.mean[b, nb:]))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), pos_kind=st.sampled_from([ukf.POS_X, ukf.POS_THETA]),
+       n=st.sampled_from([12, 18]))
+def test_closed_form_measurement_transform_equals_sigma_points(seed, pos_kind, n):
+    """The update's unscented transform from the first N_READ Cholesky columns equals
+    filterpy's full redraw through 2n+1 sigma points, on random covariances: mean, innovation
+    covariance and cross-covariance to round-off."""
+    rng = np.random.default_rng(seed)
+    G = rng.normal(size=(n, n))
+    Pm = (G @ G.T / n + 1e-3 * np.eye(n))[None] * rng.uniform(1e-3, 1.0)
+    z = rng.normal(size=(1, n))
+    z[0, ukf.I_X] = rng.uniform(1.0, 30.0)  # piston 1-30 cm: inside the joint's range
+    Wm, Wc, lam = ukf.merwe_weights(n, 1.0, 2.0, 0.0)
+    L1, L2, L3 = 0.35, 0.6, 0.5
+    m = 3
+    exact = [np.empty(m), np.empty((m, m)), np.empty((n, m))]
+    Lc = np.empty((n, ukf.N_READ))
+    assert ukf._chol_leading_cols(Pm[0], n + lam, Lc)
+    ukf._ut_measure_exact(Pm[0], z[0], Lc, Wm[0], Wc[0], Wc[1], pos_kind, L1, L2, L3, *exact,
+                          np.empty(ukf.N_READ), np.empty(ukf.N_READ))
+    sig = np.empty((2 * n + 1, n))
+    ukf._draw_sigma_points(Pm[0].copy(), Pm[0].copy(), z[0], n + lam, 1e-9, np.empty((n, n)), np.empty((n, n)),
+                           sig, np.zeros(4, dtype=np.int64))
+    ref = [np.empty(m), np.empty((m, m)), np.empty((n, m))]
+    ukf._ut_measure_sigma(sig, z[0], Wm, Wc, pos_kind, L1, L2, L3, np.empty((2 * n + 1, m)), np.empty(m), *ref)
+    for a, b in zip(exact, ref):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12 * np.abs(b).max())
