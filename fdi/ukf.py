@@ -265,9 +265,9 @@ _jit_inline = numba.njit(cache=True, inline="always")
 
 
 @_jit_inline
-def _cholesky(A, L):
-    """Lower Cholesky factor of A into L; returns False if A is not positive definite."""
-    n = A.shape[0]
+def _cholesky(A, L, n):
+    """Lower Cholesky factor of the leading n x n block of A into L's; returns False if it is
+    not positive definite."""
     for i in range(n):
         for j in range(i + 1):
             s = A[i, j]
@@ -301,14 +301,20 @@ def _chol_solve(L, b, out, y):
 
 
 @_jit_inline
-def _robust_sqrt(P, c, jitter, L, A):
-    """Cholesky of c*P with growing jitter; returns the number of jitter tries (-1: failed).
-    A (n, n) is work space (the filter's inner loop allocates nothing)."""
-    n = P.shape[0]
-    for i in range(n):
-        for j in range(n):
-            A[i, j] = c * P[i, j]
-    if _cholesky(A, L):
+def _robust_sqrt(P, c, jitter, L, A, act, na):
+    """Cholesky of c*P[act, act] (the na states act[:na]) into L[:na, :na] with growing
+    jitter; returns the number of jitter tries (-1: failed). A is work space (the filter's
+    inner loop allocates nothing)."""
+    n = na
+    if na == P.shape[0]:
+        for i in range(n):
+            for j in range(n):
+                A[i, j] = c * P[i, j]
+    else:
+        for i in range(n):
+            for j in range(n):
+                A[i, j] = c * P[act[i], act[j]]
+    if _cholesky(A, L, n):
         return 0
     scale = 0.0
     for i in range(n):
@@ -320,34 +326,44 @@ def _robust_sqrt(P, c, jitter, L, A):
         B = A.copy()
         for i in range(n):
             B[i, i] += eps * scale
-        if _cholesky(B, L):
+        if _cholesky(B, L, n):
             return tries
         eps *= 10.0
     return -1
 
 
 @_jit_inline
-def _draw_sigma_points(Pm, P0, z, c, jitter, L, A, sig, counts):
-    """Merwe sigma points of N(z, Pm) into sig (2n+1, n), as filterpy draws them.
+def _draw_sigma_points(Pm, P0, z, c, jitter, L, A, sig, counts, act, na):
+    """Merwe sigma points of N(z, Pm) into sig[:2 na + 1] (n states), as filterpy draws them,
+    over the na states act[:na] (the others are held: known constants, drawn at their mean).
 
     A covariance whose Cholesky factor needs jitter is counted in counts[1]; one
     that fails even then is restarted from P0 (counts[2]), the filter's last resort.
     """
     n = z.shape[0]
-    tries = _robust_sqrt(Pm, c, jitter, L, A)
+    tries = _robust_sqrt(Pm, c, jitter, L, A, act, na)
     if tries < 0:
         Pm[:, :] = P0
         counts[2] += 1
-        _robust_sqrt(Pm, c, jitter, L, A)
+        _robust_sqrt(Pm, c, jitter, L, A, act, na)
     elif tries > 0:
         counts[1] += 1
     # filterpy: sigmas[k+1] = x + U[k], U = cholesky upper = L^T -> U[k] = L[:, k]
     for j in range(n):
         sig[0, j] = z[j]
-    for i in range(n):
+    if na == n:  # nothing held (act is the identity): the direct loop
+        for i in range(n):
+            for j in range(n):
+                sig[1 + i, j] = z[j] + L[j, i]
+                sig[1 + n + i, j] = z[j] - L[j, i]
+        return
+    for i in range(na):
         for j in range(n):
-            sig[1 + i, j] = z[j] + L[j, i]
-            sig[1 + n + i, j] = z[j] - L[j, i]
+            sig[1 + i, j] = z[j]
+            sig[1 + na + i, j] = z[j]
+        for a in range(na):
+            sig[1 + i, act[a]] = z[act[a]] + L[a, i]
+            sig[1 + na + i, act[a]] = z[act[a]] - L[a, i]
 
 
 @_jit_inline
@@ -394,11 +410,13 @@ def _chol_leading_cols(P, c, Lc):
 
 
 @_jit_inline
-def _ut_measure_exact(Pm, z, Lc, Wm0, Wc0, wc, pos_kind, L1, L2, L3, zf, Sf, Pf, fp, fm):
+def _ut_measure_exact(Pm, z, n_pts, Lc, Wm0, Wc0, wc, pos_kind, L1, L2, L3, zf, Sf, Pf, fp, fm):
     """filterpy's unscented transform of the measurement through the sigma points
     z +- columns of L = chol((n + lambda) Pm), in closed form: mean zf (m,), covariance Sf
     (m, m) without R, cross-covariance Pf (n, m); Lc (n, N_READ) holds L's first N_READ
-    columns (:func:`_chol_leading_cols`); fp, fm (N_READ,) work space.
+    columns (:func:`_chol_leading_cols`); n_pts: the number of sigma-point pairs (the states
+    not held); fp, fm (N_READ,) work space. A held state has no covariance with the model
+    states, so its rows of Lc and Pf are 0.
 
     Why it is exact: the pressures are linear in states 0 and 1, so their transform returns
     H_P z and H_P^2 Pm, H_P Pm (the weights reproduce mean and covariance); the position reads
@@ -408,7 +426,7 @@ def _ut_measure_exact(Pm, z, Lc, Wm0, Wc0, wc, pos_kind, L1, L2, L3, zf, Sf, Pf,
     n = z.shape[0]
     nr = Lc.shape[1]
     h0 = _h_pos(z[I_X], pos_kind, L1, L2, L3)
-    acc = Wm0 * h0 + wc * 2.0 * (n - nr) * h0
+    acc = Wm0 * h0 + wc * 2.0 * (n_pts - nr) * h0
     for i in range(nr):
         fp[i] = _h_pos(z[I_X] + Lc[I_X, i], pos_kind, L1, L2, L3)
         fm[i] = _h_pos(z[I_X] - Lc[I_X, i], pos_kind, L1, L2, L3)
@@ -417,7 +435,7 @@ def _ut_measure_exact(Pm, z, Lc, Wm0, Wc0, wc, pos_kind, L1, L2, L3, zf, Sf, Pf,
     zf[0] = H_P * z[0]
     zf[1] = H_P * z[1]
     zf[2] = zx
-    s = Wc0 * (h0 - zx) ** 2 + wc * 2.0 * (n - nr) * (h0 - zx) ** 2
+    s = Wc0 * (h0 - zx) ** 2 + wc * 2.0 * (n_pts - nr) * (h0 - zx) ** 2
     for i in range(nr):
         s += wc * ((fp[i] - zx) ** 2 + (fm[i] - zx) ** 2)
     for c in range(2):
@@ -504,7 +522,7 @@ def _truncate_leaks(z, Pm, shrink_cov, min_mass):
 
 
 @numba.njit(cache=True)
-def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind, Wm, Wc, lam,
+def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind, Wm, Wc, lam, act, n_act,
          clip_leaks, project_mean, project_internal, constraint_mode, truncate_cov, truncate_min_mass,
          freeze_k, freeze_mask, freeze_sd, symmetrise, nis_alpha, nis_limit, jitter, dt,
          out_z, out_sd, out_nu, out_nis, counts, out_ll, n_steps):
@@ -523,6 +541,10 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     n_steps (B,) samples to filter per run, NON-INCREASING in b: from sample n_steps[b] on, run b
     is no longer propagated (its outputs are left as given), so that runs of different lengths
     padded into one batch cost only their own length (the active runs are a prefix of the batch).
+    act (B, n), n_act (B,): filter b's unscented transform runs over its n_act[b] states
+    act[b, :n_act[b]] (in increasing order, the model states first); the others are HELD,
+    known constants (no sigma points, no gain), and Wm, Wc (B, 2n+1), lam (B,) are the Merwe
+    weights of n_act[b] states.
     """
     B, n = z0.shape
     T = u.shape[1]
@@ -539,9 +561,12 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     states = np.empty((B * ns, N_MODEL))
     uu = np.empty(B * ns)
     params = np.empty((B * ns, npar))
+    off = np.zeros(B + 1, dtype=np.int64)  # filter b's sigma points are rows off[b]:off[b+1]
     for b in range(B):
-        for i in range(ns):
-            params[b * ns + i, :] = base[b, :]
+        off[b + 1] = off[b] + 2 * n_act[b] + 1
+    for b in range(B):
+        for i in range(off[b + 1] - off[b]):
+            params[off[b] + i, :] = base[b, :]
     ewnis = np.full(B, float(m))
     hs = np.empty((ns, m))
     zp = np.empty(m)
@@ -591,9 +616,10 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
         # ---------------- predict (from the posterior at k-1, with u[k-1])
         if k > 0:
             for b in range(nA):
-                _draw_sigma_points(Pm[b], P0[b], z[b], n + lam, jitter, L, A, sig[b], counts[b])
-                for i in range(ns):
-                    r = b * ns + i
+                _draw_sigma_points(Pm[b], P0[b], z[b], n_act[b] + lam[b], jitter, L, A, sig[b], counts[b],
+                                   act[b], n_act[b])
+                for i in range(2 * n_act[b] + 1):
+                    r = off[b] + i
                     for j in range(N_MODEL):
                         states[r, j] = sig[b, i, j] * scale[j]
                     uu[r] = u[b, k - 1]
@@ -607,30 +633,32 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                     ps = pS[b, k - 1]
                     if ps == ps:  # measured supply pressure is an input
                         params[r, P_S_COL] = ps
-            na = nA * ns
+            na = off[nA]
             new, _flags = step_batch(states[:na], uu[:na], params[:na], dt)
             for b in range(nA):
-                for i in range(ns):
-                    r = b * ns + i
+                nsb = 2 * n_act[b] + 1
+                for i in range(nsb):
+                    r = off[b] + i
                     for j in range(N_MODEL):
                         sig[b, i, j] = new[r, j] / scale[j]
                 # unscented transform of the propagated points. The parameter states are
                 # random walks: the model leaves their sigma points as drawn, so their mean
                 # stays z and their block of the covariance stays Pm (the weights reproduce
                 # both); only the rows of the model states are summed.
+                # (A held state's sigma points sit at its mean: its rows come out 0.)
                 for j in range(N_MODEL):
                     acc = 0.0
-                    for i in range(ns):
-                        acc += Wm[i] * sig[b, i, j]
+                    for i in range(nsb):
+                        acc += Wm[b, i] * sig[b, i, j]
                     z[b, j] = acc
-                for i in range(ns):  # deviations once, then rank-one sums (contiguous inner loop)
+                for i in range(nsb):  # deviations once, then rank-one sums (contiguous inner loop)
                     for j in range(n):
                         dev[i, j] = sig[b, i, j] - z[b, j]
                 for j in range(n):
                     for l in range(min(j + 1, N_MODEL)):
                         Pm[b, j, l] = 0.0
-                for i in range(ns):
-                    wi = Wc[i]
+                for i in range(nsb):
+                    wi = Wc[b, i]
                     for j in range(n):
                         a = wi * dev[i, j]
                         for l in range(min(j + 1, N_MODEL)):
@@ -664,11 +692,15 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                     if y[b, k, c] == y[b, k, c]:
                         idx[q] = c
                         q += 1
-                if _chol_leading_cols(Pm[b], n + lam, Lc):
-                    _ut_measure_exact(Pm[b], z[b], Lc, Wm[0], Wc[0], Wc[1], pos_kind, L1, L2, L3, zf, Sf, Pf, fp, fm)
+                if _chol_leading_cols(Pm[b], n_act[b] + lam[b], Lc):
+                    _ut_measure_exact(Pm[b], z[b], n_act[b], Lc, Wm[b, 0], Wc[b, 0], Wc[b, 1], pos_kind, L1, L2, L3,
+                                      zf, Sf, Pf, fp, fm)
                 else:
-                    _draw_sigma_points(Pm[b], P0[b], z[b], n + lam, jitter, L, A, sig[b], counts[b])
-                    _ut_measure_sigma(sig[b], z[b], Wm, Wc, pos_kind, L1, L2, L3, hs, col, zf, Sf, Pf)
+                    _draw_sigma_points(Pm[b], P0[b], z[b], n_act[b] + lam[b], jitter, L, A, sig[b], counts[b],
+                                       act[b], n_act[b])
+                    nsb = 2 * n_act[b] + 1
+                    _ut_measure_sigma(sig[b, :nsb], z[b], Wm[b, :nsb], Wc[b, :nsb], pos_kind, L1, L2, L3, hs, col,
+                                      zf, Sf, Pf)
                 mv = nvalid
                 for c in range(mv):
                     zp[c] = zf[idx[c]]
@@ -683,7 +715,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                     for e in range(mv):
                         Ssub[c, e] = Sm[c, e]
                 Lsub = Ls[:mv, :mv]
-                ok = _cholesky(Ssub, Lsub)
+                ok = _cholesky(Ssub, Lsub, mv)
                 if ok:
                     for c in range(mv):
                         innov[c] = y[b, k, idx[c]] - zp[c]
@@ -866,12 +898,18 @@ _CONSTRAINTS = {"project": 0, "truncate": 1, "project_joint": 2}
 
 
 def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndarray | None = None,
-               P0: np.ndarray | None = None, n_steps: np.ndarray | None = None) -> FilterOutput:
+               P0: np.ndarray | None = None, n_steps: np.ndarray | None = None,
+               held: np.ndarray | None = None) -> FilterOutput:
     """Run the batched filter over B runs at once (one step_batch call per time step).
 
     ``n_steps`` (B,): filter run b over its first n_steps[b] samples only (its outputs after
     that are NaN, its counts stop); runs of different lengths then share a batch without
-    paying for the padding."""
+    paying for the padding.
+
+    ``held`` (B, n) bool: states of filter b that are known constants (at z0, for the whole
+    run): the unscented transform runs over the other states only (2 n_free + 1 sigma points,
+    their Merwe weights), which is what a bank of constrained filters costs. Only parameter
+    states (index >= N_MODEL) may be held, with no prior covariance with the others."""
     if cfg.constraint not in _CONSTRAINTS:
         raise ValueError(f"FilterConfig.constraint: {cfg.constraint!r} is not one of {sorted(_CONSTRAINTS)}")
     B, T = inp.u.shape
@@ -879,7 +917,17 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     scale = state_scale(cfg)
     cols, rel = param_layout(cfg)
     q, p0 = noise_vectors(cfg)
-    Wm, Wc, lam = merwe_weights(n, cfg.alpha, cfg.beta, cfg.kappa)
+    held = np.zeros((B, n), dtype=np.bool_) if held is None else np.asarray(held, dtype=np.bool_)
+    if held[:, :N_MODEL].any():
+        raise ValueError("run_filter: only parameter states (index >= N_MODEL) can be held")
+    n_act = n - held.sum(axis=1)
+    act = np.array([np.concatenate([np.flatnonzero(~h), np.flatnonzero(h)]) for h in held], dtype=np.int64)
+    Wm = np.zeros((B, 2 * n + 1))
+    Wc = np.zeros((B, 2 * n + 1))
+    lam = np.empty(B)
+    for na in np.unique(n_act):
+        wm, wc, la = merwe_weights(int(na), cfg.alpha, cfg.beta, cfg.kappa)
+        Wm[n_act == na, :2 * na + 1], Wc[n_act == na, :2 * na + 1], lam[n_act == na] = wm, wc, la
     if z0 is None:
         z0 = initial_mean(inp, cfg)
     if P0 is None:
@@ -911,7 +959,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
          np.ascontiguousarray(inp.u[order], dtype=float), np.ascontiguousarray(y[order]),
          np.ascontiguousarray(pS[order]),
          np.ascontiguousarray(inp.params[order], dtype=float), scale, cols, rel, int(inp.pos_kind),
-         Wm, Wc, float(lam), bool(cfg.clip_leaks), bool(cfg.project_mean), bool(cfg.project_internal),
+         Wm[order], Wc[order], lam[order], act[order], n_act[order], bool(cfg.clip_leaks), bool(cfg.project_mean), bool(cfg.project_internal),
          _CONSTRAINTS[cfg.constraint], bool(cfg.truncate_cov), float(cfg.truncate_min_mass),
          freeze_k, freeze_mask, float(cfg.freeze_sd_factor), bool(cfg.symmetrise),
          float(nis_alpha), float(nis_limit), float(cfg.jitter), float(inp.dt),

@@ -98,9 +98,10 @@ def test_reference_holds_the_faults_and_learns_the_nuisance(bank_runs):
 
 
 def test_staged_isolation_equals_one_bank_over_the_whole_window(bank_runs):
-    """isolate() runs the five filters only up to the alarm, the rest only where undecided,
-    and the decided hypothesis alone for the size: the decisions and sizes equal those of one
-    bank over the whole window."""
+    """isolate() runs the five filters (from every candidate onset) only up to the alarm, the
+    rest only where undecided, and the decided hypothesis alone from its onset estimate for the
+    size: the decisions equal those of one multi-start bank over the whole window, the onset
+    estimate is one of the candidates and the size is that filter's last estimate."""
     out, ref, rows, k0, k1, bank = bank_runs
     T = out.mean.shape[1]
     t = out.t
@@ -112,12 +113,53 @@ def test_staged_isolation_equals_one_bank_over_the_whole_window(bank_runs):
     k_alarm = int(np.argmax(g > 1.0))
     kk0 = np.array([decs[i].k0 for i in range(len(rows))])
     assert np.all(kk0 == kk0[0]) and abs(kk0[0] * DT - (ONSET_S - iso.ONSET_LEAD_S)) < 2 * DT
-    full = iso.run_bank(out, iso.run_reference(out, rows, kk0 + 1), rows, kk0, np.full(len(rows), k_end))
-    for i in range(len(rows)):
+    n = len(rows)
+    ka = np.full(n, k_alarm)
+    starts = iso.candidate_starts(int(kk0[0]), k_alarm, k_end, DT)
+    assert len(starts) == iso.N_STARTS and starts[-1] <= k_alarm
+    ref = iso.run_reference(out, rows, np.full(n, starts[-1] + 1))
+    full = iso.run_bank_starts(out, ref, rows, kk0, np.full(n, k_end), ka)
+    for i in range(n):
         d = iso.decide(full, i, k_alarm, margin)
         assert (decs[i].hypothesis, decs[i].index) == (d.hypothesis, d.index)
-        assert decs[i].size == pytest.approx(d.size, rel=1e-9, abs=1e-15)
+        assert decs[i].onset in starts
+        one = iso.run_bank(out, ref, rows[i:i + 1], np.array([decs[i].onset]), np.array([k_end]),
+                           hypotheses=(decs[i].hypothesis,), ref_rows=np.array([i]))
+        assert decs[i].size == pytest.approx(one.free[0, 0, -1] - one.healthy[0, 0], rel=1e-9, abs=1e-15)
     assert k_end < T
+
+
+def test_evidence_over_candidate_onsets(bank_runs):
+    """run_bank_starts: with one candidate onset it is run_bank; with several, each
+    hypothesis' evidence is log mean_tau exp(R(k0..tau-1) + L_tau(tau..k)), recomputed here
+    from one run_bank per start and the reference's own innovation log-likelihoods, and its
+    size and onset come from the start most likely at the window's end."""
+    out, ref0, rows, k0, k1, bank = bank_runs
+    rows, k0, k1 = rows[:2], k0[:2], k1[:2]
+    one = iso.run_bank_starts(out, ref0, rows, k0, k1, k_alarm=k0)  # alarm at k0: one start
+    np.testing.assert_allclose(one.loglik, bank.loglik[:2], rtol=1e-12)
+    ka = k0 + int(round(0.2 / DT))
+    starts = iso.candidate_starts(int(k0[0]), int(ka[0]), int(k1[0]), DT)
+    assert len(starts) == 3
+    ref = iso.run_reference(out, rows, np.full(2, starts[-1] + 1))
+    multi = iso.run_bank_starts(out, ref, rows, k0, k1, ka)
+    for i in range(2):
+        L = int(k1[i] - k0[i])
+        R = np.concatenate([[0.0], np.cumsum(ref.ll[i, k0[i]:k0[i] + L])])
+        E = []
+        for tau in starts:
+            b = iso.run_bank(out, ref, rows[i:i + 1], np.array([tau]), k1[i:i + 1], ref_rows=np.array([i]))
+            off = tau - k0[i]
+            e = np.empty((len(iso.BANK), L))
+            e[:, :off] = R[1:off + 1]
+            e[:, off:] = R[off] + b.loglik[0, :, :L - off]
+            E.append((e, b))
+        mean = np.logaddexp.reduce(np.stack([e for e, _ in E]), axis=0) - math.log(len(starts))
+        np.testing.assert_allclose(multi.loglik[i, :, :L], mean, rtol=1e-10)
+        for h in range(1, len(iso.BANK)):
+            s = int(np.argmax([e[h, -1] for e, _ in E]))
+            assert multi.start[i, h] == starts[s]
+            assert multi.free[i, h, L - 1] == pytest.approx(E[s][1].free[0, h, L - 1 - (starts[s] - k0[i])], rel=1e-12)
 
 
 def test_onset_estimate_is_never_after_the_alarm():

@@ -280,11 +280,11 @@ def test_closed_form_measurement_transform_equals_sigma_points(seed, pos_kind, n
     exact = [np.empty(m), np.empty((m, m)), np.empty((n, m))]
     Lc = np.empty((n, ukf.N_READ))
     assert ukf._chol_leading_cols(Pm[0], n + lam, Lc)
-    ukf._ut_measure_exact(Pm[0], z[0], Lc, Wm[0], Wc[0], Wc[1], pos_kind, L1, L2, L3, *exact,
+    ukf._ut_measure_exact(Pm[0], z[0], n, Lc, Wm[0], Wc[0], Wc[1], pos_kind, L1, L2, L3, *exact,
                           np.empty(ukf.N_READ), np.empty(ukf.N_READ))
     sig = np.empty((2 * n + 1, n))
     ukf._draw_sigma_points(Pm[0].copy(), Pm[0].copy(), z[0], n + lam, 1e-9, np.empty((n, n)), np.empty((n, n)),
-                           sig, np.zeros(4, dtype=np.int64))
+                           sig, np.zeros(4, dtype=np.int64), np.arange(n), n)
     ref = [np.empty(m), np.empty((m, m)), np.empty((n, m))]
     ukf._ut_measure_sigma(sig, z[0], Wm, Wc, pos_kind, L1, L2, L3, np.empty((2 * n + 1, m)), np.empty(m), *ref)
     for a, b in zip(exact, ref):
