@@ -229,7 +229,11 @@ class BankResult:
     var_last: np.ndarray | None = None  #: (n, H, N_AUG) its scaled diagonal variances
     params: np.ndarray | None = None  #: (n, H, len(P)) parameter rows (reference calibration written in)
     z0: np.ndarray | None = None  #: (n, N_AUG) scaled start mean
+    var0: np.ndarray | None = None  #: (n, N_AUG) its scaled diagonal variances
     nis: np.ndarray | None = None  #: (n, H) mean normalised innovation squared over the window (3 if consistent)
+    #: (n, L, N_AUG) scaled posterior mean and variances of the "none" filter (run_bank(keep_healthy=True))
+    healthy_mean: np.ndarray | None = None
+    healthy_var: np.ndarray | None = None
 
     def hyps(self, i: int) -> tuple:
         """The hypothesis names of run i (axis 1 of the arrays)."""
@@ -237,12 +241,13 @@ class BankResult:
 
 
 def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndarray, k1: np.ndarray,
-             hypotheses: tuple | list = tuple(BANK), ref_rows: np.ndarray | None = None) -> BankResult:
+             hypotheses: tuple | list = tuple(BANK), ref_rows: np.ndarray | None = None,
+             keep_healthy: bool = False) -> BankResult:
     """The hypothesis bank of runs ``rows`` of the detection output ``out``, run i over
     samples [k0[i], k1[i]), seeded from row ``ref_rows[i]`` (default i) of the reference
     ``ref`` at k0[i]; ONE run_filter call for all runs and ``hypotheses``: names of BANK or
     PAIRS (:func:`free_states`), the same tuple for every run, or a list of one tuple per run
-    (all of one length H)."""
+    (all of one length H). ``keep_healthy``: keep the "none" filter's trajectory."""
     inp, det = out.inp, ref.config
     rows, k0, k1 = (np.asarray(a, dtype=np.int64) for a in (rows, k0, k1))
     ref_rows = np.arange(len(rows)) if ref_rows is None else np.asarray(ref_rows)
@@ -250,7 +255,7 @@ def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndar
     per_run = isinstance(hypotheses, list)
     names = [tuple(h) for h in hypotheses] if per_run else [tuple(hypotheses)] * n
     params, z0, var = seed_from(ref, inp, rows, k0, ref_rows)
-    return _run_hypotheses(inp, bank_config(det), rows, k0, k1, params, z0, var, names, per_run)
+    return _run_hypotheses(inp, bank_config(det), rows, k0, k1, params, z0, var, names, per_run, keep_healthy)
 
 
 def candidate_starts(k0: int, k_alarm: int, k1: int, dt: float) -> np.ndarray:
@@ -263,51 +268,77 @@ def candidate_starts(k0: int, k_alarm: int, k1: int, dt: float) -> np.ndarray:
 
 def run_bank_starts(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndarray, k1: np.ndarray,
                     k_alarm: np.ndarray, hypotheses: tuple = tuple(BANK), ref_rows: np.ndarray | None = None) -> BankResult:
-    """The bank of :func:`run_bank` with the onset as a nuisance: for run i, one bank per
-    candidate start tau of :func:`candidate_starts` (k0[i] ... towards the alarm), all in ONE
-    run_filter call, and per hypothesis H the evidence averaged over the starts (equal prior):
+    """The bank of :func:`run_bank` with the onset as a nuisance. Run i: the bank from k0[i]
+    (seeded from the reference), and one bank from each later candidate onset tau of
+    :func:`candidate_starts` seeded from that first bank's HEALTHY filter at tau (calibration
+    held at the reference's values at k0, so that a fault between k0 and tau cannot be learnt
+    as calibration, as the reference's random-walk calibration would: measured, an offset of
+    -5 % then looked like K_int); per hypothesis H the evidence averaged over the starts
+    (equal prior):
 
-        L_H(k) = log mean_tau exp(R(k0..tau-1) + L_H,tau(tau..k)),
+        L_H(k) = log mean_tau exp(L_none(k0..tau-1) + L_H,tau(tau..k)),
 
-    R the healthy reference's innovation log-likelihood (healthy up to tau), L_H,tau the bank's
-    from tau (for k < tau the term is R(k0..k)). Returned on the grid [k0[i], k1[i]) like
-    run_bank's; each hypothesis' estimates, state and ``start`` come from its most likely start
-    at the window's last sample. ``ref`` must reach the last start of every run."""
+    (for k < tau the term is L_none(k0..k)). Two run_filter calls. Returned on the grid
+    [k0[i], k1[i]) like run_bank's; each hypothesis' estimates, state and ``start`` come from
+    its most likely start at the window's last sample."""
     dt = float(out.t[1] - out.t[0])
     rows, k0, k1, k_alarm = (np.asarray(a, dtype=np.int64) for a in (rows, k0, k1, k_alarm))
-    ref_rows = np.arange(len(rows)) if ref_rows is None else np.asarray(ref_rows)
-    starts = [candidate_starts(int(a), int(b), int(c), dt) for a, b, c in zip(k0, k_alarm, k1)]
-    owner = np.repeat(np.arange(len(rows)), [len(s) for s in starts])
-    flat = run_bank(out, ref, rows[owner], np.concatenate(starts), k1[owner], hypotheses, ref_rows=ref_rows[owner])
-    n, H, L = len(rows), len(hypotheses), int(max(1, (k1 - k0).max()))
-    res = BankResult(k0=k0, loglik=np.zeros((n, H, L)), free=np.full((n, H, L), np.nan),
-                     free_sd=np.full((n, H, L), np.nan), healthy=np.full((n, H), np.nan), n_valid=k1 - k0,
-                     names=tuple(hypotheses), change=np.zeros((n, H, 4)), change_sd=np.zeros((n, H, 4)),
-                     start=np.zeros((n, H), dtype=np.int64), z_last=np.zeros((n, H, N_AUG)),
-                     var_last=np.zeros((n, H, N_AUG)), params=np.zeros((n, H, out.inp.params.shape[1])),
-                     z0=np.zeros((n, N_AUG)), nis=np.zeros((n, H)))
-    for i in range(n):
+    names = tuple(hypotheses)
+    first = run_bank(out, ref, rows, k0, k1, names, ref_rows=ref_rows, keep_healthy=True)
+    later = [(i, int(tau)) for i in range(len(rows))
+             for tau in candidate_starts(int(k0[i]), int(k_alarm[i]), int(k1[i]), dt)[1:]]
+    if not later:
+        return first
+    owner = np.array([i for i, _ in later])
+    taus = np.array([tau for _, tau in later])
+    at = taus - k0[owner]
+    z0 = first.healthy_mean[owner, at]
+    var = first.healthy_var[owner, at]
+    params = first.params[owner, 0]
+    second = _run_hypotheses(out.inp, bank_config(ref.config), rows[owner], taus, k1[owner], params, z0, var,
+                             [names] * len(owner), False)
+    res = replace(first, loglik=first.loglik.copy(), free=first.free.copy(), free_sd=first.free_sd.copy(),
+                  **{f: getattr(first, f).copy() for f in _PER_HYPOTHESIS})
+    none = names.index("none")
+    for i in range(len(rows)):
         q = np.flatnonzero(owner == i)
+        if not len(q):
+            continue
         Li = int(k1[i] - k0[i])
-        R = np.cumsum(np.nan_to_num(ref.ll[ref_rows[i], k0[i]:k0[i] + Li]))  # R(k0..k), healthy
-        R = np.concatenate([[0.0], R, np.full(Li - len(R), R[-1] if len(R) else 0.0)])
-        E = np.empty((len(q), H, Li))
-        for s, qs in enumerate(q):
-            off = int(flat.k0[qs] - k0[i])
+        R = np.concatenate([[0.0], first.loglik[i, none, :Li]])  # L_none(k0..k-1) at index k - k0
+        E = np.empty((len(q) + 1, len(names), Li))
+        E[0] = first.loglik[i, :, :Li]
+        for s, qs in enumerate(q, start=1):
+            off = int(at[qs])
             E[s, :, :off] = R[1:off + 1]
-            E[s, :, off:] = R[off] + flat.loglik[qs, :, :Li - off]
-        res.loglik[i, :, :Li] = np.logaddexp.reduce(E, axis=0) - math.log(len(q))
+            E[s, :, off:] = R[off] + second.loglik[qs, :, :Li - off]
+        res.loglik[i, :, :Li] = np.logaddexp.reduce(E, axis=0) - math.log(len(E))
         res.loglik[i, :, Li:] = res.loglik[i, :, Li - 1:Li]
-        best = np.argmax(E[:, :, Li - 1], axis=0)  # (H,) most likely start per hypothesis
-        for h, s in enumerate(best):
-            qs = q[s]
-            off = int(flat.k0[qs] - k0[i])
-            res.free[i, h, off:Li] = flat.free[qs, h, :Li - off]
-            res.free_sd[i, h, off:Li] = flat.free_sd[qs, h, :Li - off]
-            for name in ("healthy", "change", "change_sd", "start", "z_last", "var_last", "params", "nis"):
-                getattr(res, name)[i, h] = getattr(flat, name)[qs, h]
-        res.z0[i] = flat.z0[q[0]]
+        for h, s in enumerate(np.argmax(E[:, :, Li - 1], axis=0)):  # most likely start per hypothesis
+            if s == 0:
+                continue
+            qs = q[s - 1]
+            off = int(at[qs])
+            res.free[i, h, :off] = np.nan
+            res.free_sd[i, h, :off] = np.nan
+            res.free[i, h, off:Li] = second.free[qs, h, :Li - off]
+            res.free_sd[i, h, off:Li] = second.free_sd[qs, h, :Li - off]
+            for f in _PER_HYPOTHESIS:
+                getattr(res, f)[i, h] = getattr(second, f)[qs, h]
     return res
+
+
+def start_seed(bank: BankResult, q: int, k: int) -> tuple:
+    """(params, z0, var) of a bank filter of run q of ``bank`` started at sample k: the bank's
+    own seed at its k0, else its healthy filter's posterior at k (as :func:`run_bank_starts`
+    seeds its later starts)."""
+    if k == bank.k0[q]:
+        return bank.params[q, 0], bank.z0[q], bank.var0[q]
+    return bank.params[q, 0], bank.healthy_mean[q, k - bank.k0[q]], bank.healthy_var[q, k - bank.k0[q]]
+
+
+#: BankResult fields with one entry per run and hypothesis, taken from its most likely start.
+_PER_HYPOTHESIS = ("healthy", "change", "change_sd", "start", "z_last", "var_last", "params", "nis")
 
 
 def seed_from(ref: FilterOutput, inp, rows: np.ndarray, k0: np.ndarray, ref_rows: np.ndarray):
@@ -331,7 +362,8 @@ def seed_from(ref: FilterOutput, inp, rows: np.ndarray, k0: np.ndarray, ref_rows
     return params, z0, var
 
 
-def _run_hypotheses(inp, cfg: FilterConfig, rows, k0, k1, params, z0, var, names: list, per_run: bool) -> BankResult:
+def _run_hypotheses(inp, cfg: FilterConfig, rows, k0, k1, params, z0, var, names: list, per_run: bool,
+                    keep_healthy: bool = False) -> BankResult:
     """The filters ``cfg`` of runs ``rows`` over [k0, k1): run i starts from the scaled mean
     z0[i] (n_states,) and diagonal variances var[i], its parameter row params[i]; in hypothesis
     names[i][h] the fault states are held (FROZEN_VAR) except the free ones, whose variance
@@ -375,10 +407,14 @@ def _run_hypotheses(inp, cfg: FilterConfig, rows, k0, k1, params, z0, var, names
                 j = free[0]
                 free_est[i, h], free_sd[i, h] = mean[i, h, :, j], std[i, h, :, j]
                 healthy[i, h] = z0[i, j] * sc[j]
-    return BankResult(k0=k0, loglik=loglik, free=free_est, free_sd=free_sd, healthy=healthy, n_valid=k1 - k0,
+    bank = BankResult(k0=k0, loglik=loglik, free=free_est, free_sd=free_sd, healthy=healthy, n_valid=k1 - k0,
                       names=names if per_run else names[0], change=change, change_sd=change_sd,
                       start=np.repeat(k0[:, None], H, axis=1), z_last=z_last, var_last=v_last,
-                      params=np.repeat(params[:, None], H, axis=1), z0=z0, nis=nis)
+                      params=np.repeat(params[:, None], H, axis=1), z0=z0, var0=var, nis=nis)
+    if keep_healthy:
+        h = names[0].index("none")
+        bank.healthy_mean, bank.healthy_var = mean[:, h] / sc, (std[:, h] / sc) ** 2
+    return bank
 
 
 def run_pairs(out: FilterOutput, ref: FilterOutput, first: BankResult, rows: np.ndarray, k1: np.ndarray,
@@ -569,22 +605,25 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     if k_stop is not None:
         k1 = np.minimum(k1, k_stop)
     k1 = np.maximum(k1, k0 + 1)
-    last = np.array([candidate_starts(int(a), int(b), int(c), dt)[-1] for a, b, c in zip(k0, ka, k1)])
-    ref = run_reference(out, rows, last + 1)  # healthy up to every candidate onset
+    ref = run_reference(out, rows, k0 + 1)
     k_a1 = np.minimum(ka + 1, k1)  # stage 1: up to and including the alarm
     bank = run_bank_starts(out, ref, rows, k0, k_a1, ka)
     decs = [decide(bank, i, int(ka[i]), margin) for i in range(len(rows))]
+    seeds = [start_seed(bank, i, d.onset) for i, d in enumerate(decs)]  # of the decided filter
     late = np.array([i for i, d in enumerate(decs) if d.hypothesis is None and k1[i] > k_a1[i]], dtype=np.int64)
     if len(late):  # stage 2: the undecided runs over their whole window
         bank2 = run_bank_starts(out, ref, rows[late], k0[late], k1[late], ka[late], ref_rows=late)
         for q, i in enumerate(late):
             decs[i] = decide(bank2, q, int(ka[i]), margin)
+            seeds[i] = start_seed(bank2, q, decs[i].onset)
     if size:  # stage 3: the decided hypothesis alone from its onset estimate over the whole window
         for name in FAULTS:
             sel = np.array([i for i, d in enumerate(decs) if d.hypothesis == name and k1[i] > k_a1[i]], dtype=np.int64)
             if len(sel):
                 onset = np.array([decs[i].onset for i in sel], dtype=np.int64)
-                one = run_bank(out, ref, rows[sel], onset, k1[sel], hypotheses=(name,), ref_rows=sel)
+                params, z0, var = (np.stack(a) for a in zip(*[seeds[i] for i in sel]))
+                one = _run_hypotheses(out.inp, bank_config(ref.config), rows[sel], onset, k1[sel], params, z0, var,
+                                      [(name,)] * len(sel), False)
                 for q, i in enumerate(sel):
                     nv = int(one.n_valid[q])
                     decs[i].size = float(one.free[q, 0, nv - 1] - one.healthy[q, 0])

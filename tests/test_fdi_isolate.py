@@ -123,43 +123,51 @@ def test_staged_isolation_equals_one_bank_over_the_whole_window(bank_runs):
         d = iso.decide(full, i, k_alarm, margin)
         assert (decs[i].hypothesis, decs[i].index) == (d.hypothesis, d.index)
         assert decs[i].onset in starts
-        one = iso.run_bank(out, ref, rows[i:i + 1], np.array([decs[i].onset]), np.array([k_end]),
-                           hypotheses=(decs[i].hypothesis,), ref_rows=np.array([i]))
+        params, z0, var = iso.start_seed(full, i, decs[i].onset)
+        one = iso._run_hypotheses(out.inp, iso.bank_config(ref.config), rows[i:i + 1], np.array([decs[i].onset]),
+                                  np.array([k_end]), params[None], z0[None], var[None], [(decs[i].hypothesis,)],
+                                  False)
         assert decs[i].size == pytest.approx(one.free[0, 0, -1] - one.healthy[0, 0], rel=1e-9, abs=1e-15)
     assert k_end < T
 
 
 def test_evidence_over_candidate_onsets(bank_runs):
     """run_bank_starts: with one candidate onset it is run_bank; with several, each
-    hypothesis' evidence is log mean_tau exp(R(k0..tau-1) + L_tau(tau..k)), recomputed here
-    from one run_bank per start and the reference's own innovation log-likelihoods, and its
-    size and onset come from the start most likely at the window's end."""
-    out, ref0, rows, k0, k1, bank = bank_runs
+    hypothesis' evidence is log mean_tau exp(L_none(k0..tau-1) + L_tau(tau..k)), recomputed
+    here from the healthy filter of the bank from k0 and one bank per later start seeded from
+    that filter at tau, and its size and onset come from the start most likely at the end."""
+    out, ref, rows, k0, k1, bank = bank_runs
     rows, k0, k1 = rows[:2], k0[:2], k1[:2]
-    one = iso.run_bank_starts(out, ref0, rows, k0, k1, k_alarm=k0)  # alarm at k0: one start
+    one = iso.run_bank_starts(out, ref, rows, k0, k1, k_alarm=k0)  # alarm at k0: one start
     np.testing.assert_allclose(one.loglik, bank.loglik[:2], rtol=1e-12)
     ka = k0 + int(round(0.2 / DT))
     starts = iso.candidate_starts(int(k0[0]), int(ka[0]), int(k1[0]), DT)
     assert len(starts) == 3
-    ref = iso.run_reference(out, rows, np.full(2, starts[-1] + 1))
     multi = iso.run_bank_starts(out, ref, rows, k0, k1, ka)
+    first = iso.run_bank(out, ref, rows, k0, k1, keep_healthy=True)
+    cfg = iso.bank_config(ref.config)
     for i in range(2):
         L = int(k1[i] - k0[i])
-        R = np.concatenate([[0.0], np.cumsum(ref.ll[i, k0[i]:k0[i] + L])])
-        E = []
-        for tau in starts:
-            b = iso.run_bank(out, ref, rows[i:i + 1], np.array([tau]), k1[i:i + 1], ref_rows=np.array([i]))
+        R = np.concatenate([[0.0], first.loglik[i, 0, :L]])  # "none" is the first hypothesis
+        E, banks = [first.loglik[i, :, :L]], [first]
+        for tau in starts[1:]:
             off = tau - k0[i]
+            b = iso._run_hypotheses(out.inp, cfg, rows[i:i + 1], np.array([tau]), k1[i:i + 1],
+                                    first.params[i:i + 1, 0], first.healthy_mean[i:i + 1, off],
+                                    first.healthy_var[i:i + 1, off], [tuple(iso.BANK)], False)
             e = np.empty((len(iso.BANK), L))
             e[:, :off] = R[1:off + 1]
             e[:, off:] = R[off] + b.loglik[0, :, :L - off]
-            E.append((e, b))
-        mean = np.logaddexp.reduce(np.stack([e for e, _ in E]), axis=0) - math.log(len(starts))
+            E.append(e)
+            banks.append(b)
+        mean = np.logaddexp.reduce(np.stack(E), axis=0) - math.log(len(starts))
         np.testing.assert_allclose(multi.loglik[i, :, :L], mean, rtol=1e-10)
         for h in range(1, len(iso.BANK)):
-            s = int(np.argmax([e[h, -1] for e, _ in E]))
+            s = int(np.argmax([e[h, -1] for e in E]))
             assert multi.start[i, h] == starts[s]
-            assert multi.free[i, h, L - 1] == pytest.approx(E[s][1].free[0, h, L - 1 - (starts[s] - k0[i])], rel=1e-12)
+            last = L - 1 - (starts[s] - k0[i])
+            got = banks[s].free[0 if s else i, h, last]
+            assert multi.free[i, h, L - 1] == pytest.approx(got, rel=1e-12)
 
 
 def test_onset_estimate_is_never_after_the_alarm():

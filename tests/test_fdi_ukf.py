@@ -32,15 +32,24 @@ def _runs(p, T=1501, faults=None, seed=0, B=1):
     return simulate_runs(np.tile(p, (B, 1)), u, DT, faults=faults, seed=seed)
 
 
-def _filterpy_reference(inp, cfg, z0, P0, b=0, loglik=None):
+def _filterpy_reference(inp, cfg, z0, P0, b=0, loglik=None, held=None):
     """A plain filterpy loop calling the model once per sigma point (scaled units); appends
-    filterpy's per-step log-likelihood to ``loglik`` when given a list."""
+    filterpy's per-step log-likelihood to ``loglik`` when given a list. ``held`` (n,) bool:
+    filterpy's state is only the other states, the held ones are constants at z0."""
     scale = state_scale(cfg)
     cols, rel = param_layout(cfg)
-    n = len(scale)
+    n_full = len(scale)
+    free = np.arange(n_full) if held is None else np.flatnonzero(~held)
+    n = len(free)
     params = inp.params[b].copy()
 
-    def fx(zs, dt, u):
+    def expand(zr):
+        zs = z0[b].astype(float).copy()
+        zs[free] = zr
+        return zs
+
+    def fx(zr, dt, u):
+        zs = expand(zr)
         full = zs * scale
         prm = params.copy()
         vals = full[N_MODEL:].copy()
@@ -52,24 +61,25 @@ def _filterpy_reference(inp, cfg, z0, P0, b=0, loglik=None):
         new, _ = step_batch(full[None, :N_MODEL].copy(), np.array([u]), prm[None, :], dt)
         out = zs.copy()
         out[:N_MODEL] = new[0] / scale[:N_MODEL]
-        return out
+        return out[free]
 
     L1, L2, L3 = params[P.L_1], params[P.L_2], params[P.L_3]
 
-    def hx(zs):
+    def hx(zr):
+        zs = expand(zr)
         x = zs[4] * SCALE[4]
         c = np.clip((L1**2 + L2**2 - (x + L3) ** 2) / (2 * L1 * L2), -1, 1)
         return np.array([zs[0], zs[1], math.acos(c) / 1e-3])
 
     pts = MerweScaledSigmaPoints(n, alpha=cfg.alpha, beta=cfg.beta, kappa=cfg.kappa)
     ukf = UnscentedKalmanFilter(dim_x=n, dim_z=3, dt=inp.dt, hx=hx, fx=fx, points=pts)
-    ukf.x = z0[b].copy()
-    ukf.P = P0[b].copy()
-    ukf.Q = np.diag((noise_vectors(cfg)[0] * math.sqrt(inp.dt) / scale) ** 2)
+    ukf.x = z0[b][free].copy()
+    ukf.P = P0[b][np.ix_(free, free)].copy()
+    ukf.Q = np.diag((noise_vectors(cfg)[0][free] * math.sqrt(inp.dt) / scale[free]) ** 2)
     ukf.R = np.diag(measurement_variances(cfg, inp.pos_kind))
     y = scaled_measurements(inp)[b]
     T = inp.u.shape[1]
-    xs, Ps = np.empty((T, n)), np.empty((T, n))
+    xs, Ps = np.empty((T, n_full)), np.empty((T, n_full))
     for k in range(T):
         if k > 0:
             ukf.predict(dt=inp.dt, u=inp.u[b, k - 1])
@@ -78,8 +88,9 @@ def _filterpy_reference(inp, cfg, z0, P0, b=0, loglik=None):
         ukf.update(y[k])
         if loglik is not None:
             loglik.append(ukf.log_likelihood)
-        xs[k] = ukf.x
-        Ps[k] = np.sqrt(np.diag(ukf.P))
+        xs[k] = expand(ukf.x)
+        Ps[k] = 0.0
+        Ps[k, free] = np.sqrt(np.diag(ukf.P))
     return xs, Ps
 
 
@@ -97,6 +108,37 @@ def test_batched_ukf_equals_filterpy(plant_vector):
     assert np.max(np.abs(ours_x - ref_x)) < 1e-9
     assert np.max(np.abs(ours_sd - ref_sd)) < 1e-9
     assert out.n_jitter[0] == 0 and out.n_cov_reset[0] == 0
+
+
+def test_held_states_equal_filterpy_on_the_free_states(plant_vector):
+    """run_filter(held=...) is the UKF of the free states only (the bank's constrained
+    filters): equal to a filterpy UKF whose state is the free states (the held ones constants
+    in fx and hx) to 1e-9, and the held states never move."""
+    t = np.arange(301) * DT
+    runs = _runs(plant_vector, T=301, faults={"K_int": profile("step", lpm(1.0), t, t0=0.1)}, B=2)
+    cfg = FilterConfig(project_mean=False, nis_factor=0.0, calibrate=(), constraint="project")
+    n = len(state_scale(cfg))
+    held = np.zeros((2, n), dtype=bool)
+    held[1, [ukf.I_KEXTA, ukf.I_KEXTB, ukf.I_OFFSET]] = True  # run 1: only K_int (and F_d) free
+    z0 = initial_mean(runs.inp, cfg)
+    P0 = np.repeat(np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None], 2, axis=0)
+    P0[1][held[1], :] = 0.0
+    P0[1][:, held[1]] = 0.0
+    P0[1][held[1], held[1]] = 1e-12
+    q = np.array(cfg.q)
+    q[[ukf.I_KEXTA, ukf.I_KEXTB, ukf.I_OFFSET]] = 0.0
+    cfg = cfg.with_(q=tuple(q))
+    out = run_filter(runs.inp, cfg, z0=z0, P0=P0, held=held)
+    for b in range(2):
+        ref_x, ref_sd = _filterpy_reference(runs.inp, cfg, z0, P0, b=b, held=held[b])
+        ours = out.mean[b] / state_scale(cfg)
+        assert np.max(np.abs(ours - ref_x)) < 1e-9
+        sd = out.std[b] / state_scale(cfg)
+        assert np.max(np.abs(sd[:, ~held[b]] - ref_sd[:, ~held[b]])) < 1e-9
+    assert np.all(out.mean[1][:, held[1]] == out.mean[1][0, held[1]])
+    assert np.abs(out.mean[0, -1, ukf.I_KEXTA] - out.mean[0, 0, ukf.I_KEXTA]) > 0  # free in run 0
+    with pytest.raises(ValueError, match="parameter states"):
+        run_filter(runs.inp, cfg, held=np.ones((2, n), dtype=bool))
 
 
 def test_innovation_log_likelihood_equals_filterpy(plant_vector):
