@@ -404,6 +404,8 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
         lik["pair_minus_best_single_nats"] = d.pair_llr
     if d.several:
         return _several(out, th, d, lik, margin)
+    if d.revised is not None:
+        return _revised(out, th, d, lik, name)
     if d.pair_candidates:
         second = [p.split(isolate.PAIR_SEP)[1] for p in d.pair_candidates]
         note = (f"{name} alone is rejected at the {th.false_isolation_level:g} false-isolation level (pairs with "
@@ -415,6 +417,23 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
     note = (f"no single-fault hypothesis beats the others by {margin:.2g} nats (the margin of a "
             f"{th.false_isolation_level:g} false-isolation level): {', '.join(cands)} explain the data alike")
     return "fault, not isolable", cands, {name: size}, conf, None, lik, note
+
+
+def _revised(out: FilterOutput, th: Thresholds, d, lik: dict, early: str):
+    """Status, isolated, size, confidence, isolation time, likelihoods and note of a decision
+    that the several-faults window overturned (fdi.isolate.Decision.revised): the later single
+    fault, sized by that window's filter, its confidence the posterior bound of its lead."""
+    from . import isolate
+
+    name = isolate.hypothesis_name(d.revised, d.revised_size)
+    s = math.hypot(d.revised_size_sd, th.nuisance_sd.get(d.revised, 0.0))
+    lik = {**lik, "revised_from": early, "revised_lead_nats": d.revised_llr}
+    t_early = float(out.t[d.index]) if d.index >= 0 else float("nan")
+    note = (f"first isolated as {early} at {t_early:.3f} s; the data after the alarm (restarted filters, "
+            f"to {float(out.t[d.revised_index]):.3f} s) favour {name} over every other single fault by "
+            f"{d.revised_llr:.0f} nats: revised to {name}")
+    conf = {name: 1.0 - isolate.margin_level(min(d.revised_llr, 700.0))}
+    return "fault", [name], {name: _size_entry(name, d.revised_size, s)}, conf, float(out.t[d.revised_index]), lik, note
 
 
 def _size_entry(name: str, m: float, s: float) -> dict:

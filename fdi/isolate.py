@@ -497,6 +497,14 @@ class Decision:
     #: pairs ahead of the best single by the margin but not of each other (ambiguous second fault)
     pair_candidates: list = field(default_factory=list)
     pair_nis: dict = field(default_factory=dict)  #: hypothesis -> mean NIS over the several-faults window
+    #: the single fault that the several-faults window (data after the alarm, restarted filters)
+    #: isolates when it is NOT the early decision (None: it confirms it, or is undecided), its
+    #: lead over the other singles [nats], its change and std (SI) and the recording sample
+    revised: str | None = None
+    revised_llr: float = float("nan")
+    revised_size: float = float("nan")
+    revised_size_sd: float = float("nan")
+    revised_index: int = -1
 
 
 def decide(bank: BankResult, i: int, k_alarm: int, margin: float) -> Decision:
@@ -549,6 +557,7 @@ def decide_pair(bank: BankResult, i: int, margin: float, d: Decision) -> Decisio
     srt = np.sort(ll[ns:])
     at = nv - 1
     d.pair_llr = {names[ns + q]: float(ll[ns + q] - single) for q in range(len(names) - ns)}
+    _revise(bank, i, margin, d, ll[:ns])
     d.pair_nis = {names[q]: float(bank.nis[i, q]) for q in range(len(names))}
     big = [all(abs(bank.change[i, ns + q, FAULTS.index(m)]) >= MIN_PAIR_SIZE[m] for m in names[ns + q].split(PAIR_SEP))
            for q in range(len(names) - ns)]
@@ -563,6 +572,23 @@ def decide_pair(bank: BankResult, i: int, margin: float, d: Decision) -> Decisio
         d.several_size[m] = float(bank.change[i, q, c])
         d.several_size_sd[m] = float(bank.change_sd[i, q, c])
     return d
+
+
+def _revise(bank: BankResult, i: int, margin: float, d: Decision, ll_single: np.ndarray) -> None:
+    """The early decision against the single faults of the several-faults window: if another
+    single leads every single there by ``margin`` nats, d.revised names it (with its change from
+    that window's filter). Measured: a -5 % offset step is taken for K_int at the alarm (its
+    first 0.25 s fit K_int better, by 806 nats), and the 4 s after the alarm favour the offset
+    by thousands of nats."""
+    srt = np.sort(ll_single)
+    best = int(np.argmax(ll_single))
+    if FAULTS[best] == best_single(d) or srt[-1] - srt[-2] < margin:
+        return
+    nv = int(bank.n_valid[i])
+    d.revised, d.revised_llr = FAULTS[best], float(srt[-1] - srt[-2])
+    d.revised_size = float(bank.change[i, best, best])
+    d.revised_size_sd = float(bank.change_sd[i, best, best])
+    d.revised_index = int(bank.k0[i]) + nv - 1
 
 
 def first_alarms(stats: dict, h: dict) -> tuple[np.ndarray, list]:
