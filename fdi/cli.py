@@ -42,6 +42,11 @@ def add_commands(subparsers) -> None:
     g.add_argument("--detector", default="cusum", choices=("cusum", "glr"),
                    help="alarm source the file is for: cusum (default) or glr (also derives the GLR thresholds from "
                         "the nuisance GSA's healthy runs; tune then alarms on the GLR)")
+    g.add_argument("--votes", default="detectable", choices=("detectable", "specific"),
+                   help="which residuals vote for a fault: detectable (default; its share of the residual over the "
+                        "leakage box is >= 3 healthy spreads: for the likelihood isolation, which names the fault "
+                        "itself) or specific (the fault explains >= half of the residual's variance: for "
+                        "isolation = \"signature\", which names the first alarm's fault)")
     g.add_argument("--out", required=True, help="output folder: thresholds.toml, thresholds.md, thresholds_gsa.json")
     g.set_defaults(func=_thresholds)
 
@@ -84,7 +89,8 @@ def _thresholds(args) -> int:
     if args.filter not in PRESETS:
         raise UserError(f"--filter: unknown filter {args.filter!r}; known: {', '.join(PRESETS)}")
     th, report = compute_thresholds(_plant(args), N_leak=args.n_leak, N_nuisance=args.n_nuisance,
-                                    workers=args.workers, filter=args.filter, detector=args.detector)
+                                    workers=args.workers, filter=args.filter, detector=args.detector,
+                                    vote_rule=args.votes)
     print(describe(th))
     for p in write_thresholds(th, report, Path(args.out)):
         print(f"wrote {p}")

@@ -317,3 +317,23 @@ def test_tune_chunk_job_random_onsets_real_runs():
     assert np.all(ka >= k0) and np.all(ka - k0 <= 1000), (ka, k0)
     np.testing.assert_array_equal(res["iso_h"], tune.HYP.index("K_extA"))
     assert np.all(res["iso_k"] >= k0)
+
+
+def test_vote_rules_follow_the_sensitivity_studies():
+    """compute_thresholds at a tiny size: with the default "detectable" rule a residual votes
+    exactly where the fault's share of it over the leakage box is >= VOTE_SNR healthy spreads,
+    with "specific" where the fault's total index is >= VOTE_ST (both read back from the
+    report of the same studies); the thresholds file names a non-default rule."""
+    from fdi import thresholds as T
+    plant = load_plant()
+    for rule in ("detectable", "specific"):
+        th, rep = T.compute_thresholds(plant, N_leak=4, N_nuisance=4, vote_rule=rule)
+        for p_, votes in th.votes.items():
+            if rule == "detectable":
+                expect = [s >= T.VOTE_SNR for s in rep["votes_snr_own"][p_]]
+            else:
+                expect = [s >= T.VOTE_ST for s in rep["votes_ST_own"][p_]]
+            if any(expect):  # (a hypothesis is never silenced: then it votes where it shows most)
+                assert votes == expect, (rule, p_)
+            assert all(np.isfinite(rep["votes_snr_own"][p_]))
+        assert ("votes specific" in th.source) == (rule == "specific")
