@@ -19,13 +19,19 @@ at sample k_a:
    mean and variances, the reference's calibration values written into the parameter
    vector, in which ONLY the parameter of H is free (a constant with the prior
    :data:`PRIOR_SD`), the other faults stay at their healthy values. All hypotheses of all
-   runs go through ONE :func:`fdi.ukf.run_filter` call (B = runs x hypotheses).
+   runs go through ONE :func:`fdi.ukf.run_filter` call (B = runs x hypotheses). A held fault
+   state is a known constant: the filter's unscented transform runs over its free states only.
+   **The onset is a nuisance** (:func:`run_bank_starts`): more banks start at later candidate
+   onsets (every ``START_STEP_S``, at most ``N_STARTS``, never after the alarm), seeded from
+   the first bank's healthy filter, and each hypothesis' evidence is averaged over the starts.
 4. **decision**: with L_H(k) = sum_{i=k0..k} log N(nu_H,i; 0, S_H,i), the innovation
-   log-likelihood of filter H, the fault is isolated as H at the first k >= k_a at which
+   log-likelihood of filter H (averaged over the candidate onsets as above), the fault is
+   isolated as H at the first k >= k_a at which
    L_H(k) exceeds every other fault hypothesis by ``margin`` nats (causal: data up to k).
    Otherwise "not isolable", with the hypotheses within the margin of the best.
-5. **size**: the free parameter of the isolated hypothesis' filter at the end of its window
-   (the estimate of a constant from all the window's data), minus its healthy value.
+5. **size**: the free parameter of the isolated hypothesis' filter, from its most likely
+   onset to the end of the window (the estimate of a constant from all the window's data),
+   minus its healthy value.
 6. **several faults** (:func:`run_pairs`, :func:`decide_pair`): after the alarm, the four
    single-fault filters and the six pair filters (two fault parameters free) are RESTARTED
    from the model state of the best single's filter at the alarm, every fault parameter back
@@ -34,6 +40,8 @@ at sample k_a:
    leads every single and every other pair by the margin of the same false-isolation level for these ten
    hypotheses; the pair's filter sizes both parameters. A pair that leads every single but
    not the other pairs is reported as "fault, not isolable" (``Decision.pair_candidates``).
+   The same window's four single-fault filters **revise** the early decision when another
+   single leads them all by the margin (``Decision.revised``, :func:`_revise`).
 
 The margin is not fitted: with equal prior probabilities, the posterior probability of the
 best of n hypotheses is at least 1 / (1 + (n - 1) e^-margin); :func:`margin_for` gives the
@@ -95,7 +103,7 @@ PRIOR_SD = {I_KINT: 1.0 * K_PER_LPM, I_KEXTA: 1.0 * K_PER_LPM, I_KEXTB: 1.0 * K_
 #: Relative prior std of a held fault state in the reference filter (x its detection p0):
 #: small enough that it does not move, large enough for a well-conditioned covariance.
 HELD_P0_FACTOR = 1e-6
-#: Variance of a held state in the bank (scaled units), as in the detection filter's freeze.
+#: Reported variance of a held state in the bank (scaled units; the filter treats it as a constant).
 FROZEN_VAR = 1e-12
 #: s: the bank starts this long before the CUSUM change-time estimate: the change residual
 #: needs a few tenths of a second to leave 0 after a step (the filter's response), and an
@@ -258,6 +266,10 @@ def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndar
     return _run_hypotheses(inp, bank_config(det), rows, k0, k1, params, z0, var, names, per_run, keep_healthy)
 
 
+#: BankResult fields with one entry per run and hypothesis, taken from its most likely start.
+_PER_HYPOTHESIS = ("healthy", "change", "change_sd", "start", "z_last", "var_last", "params", "nis")
+
+
 def candidate_starts(k0: int, k_alarm: int, k1: int, dt: float) -> np.ndarray:
     """The bank's candidate onsets of one run: k0, k0 + step, ... (N_STARTS at most, every
     START_STEP_S), none after the alarm or at/after the window's end k1 (always k0 itself)."""
@@ -337,10 +349,6 @@ def start_seed(bank: BankResult, q: int, k: int) -> tuple:
     return bank.params[q, 0], bank.healthy_mean[q, k - bank.k0[q]], bank.healthy_var[q, k - bank.k0[q]]
 
 
-#: BankResult fields with one entry per run and hypothesis, taken from its most likely start.
-_PER_HYPOTHESIS = ("healthy", "change", "change_sd", "start", "z_last", "var_last", "params", "nis")
-
-
 def seed_from(ref: FilterOutput, inp, rows: np.ndarray, k0: np.ndarray, ref_rows: np.ndarray):
     """Start of bank filters from row ref_rows[i] of ``ref`` at sample k0[i]: the parameter rows
     (n, len(P)) of runs ``rows`` with ref's calibration values written in, and the scaled
@@ -366,8 +374,10 @@ def _run_hypotheses(inp, cfg: FilterConfig, rows, k0, k1, params, z0, var, names
                     keep_healthy: bool = False) -> BankResult:
     """The filters ``cfg`` of runs ``rows`` over [k0, k1): run i starts from the scaled mean
     z0[i] (n_states,) and diagonal variances var[i], its parameter row params[i]; in hypothesis
-    names[i][h] the fault states are held (FROZEN_VAR) except the free ones, whose variance
-    gets PRIOR_SD^2 added. ONE run_filter call (B = runs x hypotheses)."""
+    names[i][h] the fault states are held (known constants, ``run_filter(held=...)``; their
+    reported variance FROZEN_VAR) except the free ones, whose variance gets PRIOR_SD^2 added.
+    ONE run_filter call (B = runs x hypotheses). ``keep_healthy``: also keep the "none"
+    hypothesis' scaled mean and variances over the window (healthy_mean, healthy_var)."""
     n, H = len(rows), len(names[0])
     ns = z0.shape[1]
     frees = [[free_states(h) for h in nm] for nm in names]  # (n, H) tuples of state indices
@@ -526,7 +536,7 @@ def decide(bank: BankResult, i: int, k_alarm: int, margin: float) -> Decision:
     hb = fi[best]
     size = float(bank.free[i, hb, nv - 1] - bank.healthy[i, hb])
     size_sd = float(bank.free_sd[i, hb, nv - 1])
-    onset = int(bank.start[i, hb]) if bank.start is not None else int(bank.k0[i])
+    onset = int(bank.start[i, hb])
     if len(ok):
         return Decision(FAULTS[best], int(bank.k0[i]) + at, [FAULTS[best]], llr, llr_none, int(bank.k0[i]), onset,
                         size, size_sd)
@@ -609,9 +619,10 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     """Run the reference and the bank for every run (of ``rows``) that alarmed, batched;
     returns run -> Decision. A run's window is [k0, end of the record) or, with ``horizon_s``,
     [k0, alarm + horizon_s], never beyond ``k_stop``. In stages, so that the five filters run
-    only as long as a decision needs them: (1) the bank up to the alarm, decided there; (2) for
-    runs not yet decided, the bank over the whole window; (3) with ``size``, the decided
-    hypothesis' filter alone over the whole window, whose last estimate is the size; (4) with
+    only as long as a decision needs them: (1) the bank (all candidate onsets) up to the alarm,
+    decided there; (2) for runs not yet decided, the bank over the whole window; (3) with
+    ``size``, the decided hypothesis' filter alone from its onset estimate over the whole
+    window, whose last estimate is the size; (4) with
     ``pairs`` (several faults), every single fault and pair restarted after the alarm
     (:func:`run_pairs`) up to ``pair_horizon_s`` after it (None: the record's end), never
     beyond ``k_stop``, decided by :func:`decide_pair` with the margin of the same level for
