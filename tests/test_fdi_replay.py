@@ -299,6 +299,8 @@ def test_tune_analyse_scores_each_run_from_its_own_onset(tmp_path):
     assert row["isolated_within_1s"] == 0.5
     assert row["mean_delay_s"] == pytest.approx((0.001 + 0.1 + 1.001) / 3)
     assert m["false_alarm_rate"] == 0.0
+    # loads 100 / 300 / 600 / 700 kg: the 267-534 kg third has one run, isolated: 100 %
+    assert m["smallest_detected_and_isolated_95pct_within_1s_by_load"]["K_int"] == [None, 0.25, None]
     assert "uniform in [1.5, 2.5] s" in (tmp_path / "metrics.md").read_text()
     assert str(tune._chunk_path(chunk_dir, jobs[0])).endswith(f"_{tune.CHUNK_VERSION}.npz")
 
