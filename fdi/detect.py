@@ -405,7 +405,7 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
     if d.several:
         return _several(out, th, d, lik, margin)
     if d.revised is not None:
-        return _revised(out, th, d, lik, name)
+        return _revised(out, th, d, lik, isolate.hypothesis_name(isolate.best_single(d), d.size))
     if d.pair_candidates:
         second = [p.split(isolate.PAIR_SEP)[1] for p in d.pair_candidates]
         note = (f"{name} alone is rejected at the {th.false_isolation_level:g} false-isolation level (pairs with "
@@ -428,10 +428,12 @@ def _revised(out: FilterOutput, th: Thresholds, d, lik: dict, early: str):
     name = isolate.hypothesis_name(d.revised, d.revised_size)
     s = math.hypot(d.revised_size_sd, th.nuisance_sd.get(d.revised, 0.0))
     lik = {**lik, "revised_from": early, "revised_lead_nats": d.revised_llr}
-    t_early = float(out.t[d.index]) if d.index >= 0 else float("nan")
-    note = (f"first isolated as {early} at {t_early:.3f} s; the data after the alarm (restarted filters, "
-            f"to {float(out.t[d.revised_index]):.3f} s) favour {name} over every other single fault by "
-            f"{d.revised_llr:.0f} nats: revised to {name}")
+    if d.index >= 0:
+        first = f"first isolated as {early} at {float(out.t[d.index]):.3f} s"
+    else:
+        first = f"not isolable at first (best {early}; candidates {', '.join(d.candidates)})"
+    note = (f"{first}; the data after the alarm (restarted filters, to {float(out.t[d.revised_index]):.3f} s) "
+            f"favour {name} over every other single fault by {d.revised_llr:.0f} nats: revised to {name}")
     conf = {name: 1.0 - isolate.margin_level(min(d.revised_llr, 700.0))}
     return "fault", [name], {name: _size_entry(name, d.revised_size, s)}, conf, float(out.t[d.revised_index]), lik, note
 

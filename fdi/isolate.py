@@ -288,9 +288,10 @@ def run_bank_starts(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: 
     -5 % then looked like K_int); per hypothesis H the evidence averaged over the starts
     (equal prior):
 
-        L_H(k) = log mean_tau exp(L_none(k0..tau-1) + L_H,tau(tau..k)),
+        L_H(k) = log mean_tau exp(L_none(k0..tau) + L_H,tau(tau+1..k)),
 
-    (for k < tau the term is L_none(k0..k)). Two run_filter calls. Returned on the grid
+    (for k <= tau the term is L_none(k0..k); the bank from tau is seeded with the healthy
+    posterior at tau, so it counts from tau + 1). Two run_filter calls. Returned on the grid
     [k0[i], k1[i]) like run_bank's; each hypothesis' estimates, state and ``start`` come from
     its most likely start at the window's last sample."""
     dt = float(out.t[1] - out.t[0])
@@ -317,13 +318,15 @@ def run_bank_starts(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: 
         if not len(q):
             continue
         Li = int(k1[i] - k0[i])
-        R = np.concatenate([[0.0], first.loglik[i, none, :Li]])  # L_none(k0..k-1) at index k - k0
+        R = first.loglik[i, none, :Li]  # L_none(k0..k) at index k - k0
         E = np.empty((len(q) + 1, len(names), Li))
         E[0] = first.loglik[i, :, :Li]
         for s, qs in enumerate(q, start=1):
             off = int(at[qs])
-            E[s, :, :off] = R[1:off + 1]
-            E[s, :, off:] = R[off] + second.loglik[qs, :, :Li - off]
+            # the seed is the healthy posterior at tau, which has used y[tau]: the bank from tau
+            # counts from tau + 1 (its own first term re-uses y[tau])
+            E[s, :, :off + 1] = R[:off + 1]
+            E[s, :, off + 1:] = R[off] + second.loglik[qs, :, 1:Li - off] - second.loglik[qs, :, :1]
         res.loglik[i, :, :Li] = np.logaddexp.reduce(E, axis=0) - math.log(len(E))
         res.loglik[i, :, Li:] = res.loglik[i, :, Li - 1:Li]
         for h, s in enumerate(np.argmax(E[:, :, Li - 1], axis=0)):  # most likely start per hypothesis
@@ -585,18 +588,22 @@ def decide_pair(bank: BankResult, i: int, margin: float, d: Decision) -> Decisio
 
 
 def _revise(bank: BankResult, i: int, margin: float, d: Decision, ll_single: np.ndarray) -> None:
-    """The early decision against the single faults of the several-faults window: if another
-    single leads every single there by ``margin`` nats, d.revised names it (with its change from
-    that window's filter). Measured: a -5 % offset step is taken for K_int at the alarm (its
-    first 0.25 s fit K_int better, by 806 nats), and the 4 s after the alarm favour the offset
-    by thousands of nats."""
+    """The early decision against the single faults of the several-faults window: if one single
+    leads every single there by ``margin`` nats and it is not the isolated fault (another
+    parameter, or the other offset side), or nothing was isolated early, d.revised names it
+    (with its change from that window's filter). Measured: a -5 % offset step is taken for
+    K_int at the alarm (its first 0.25 s fit K_int better, by 806 nats), and the 4 s after the
+    alarm favour the offset by thousands of nats."""
     srt = np.sort(ll_single)
     best = int(np.argmax(ll_single))
-    if FAULTS[best] == best_single(d) or srt[-1] - srt[-2] < margin:
+    change = float(bank.change[i, best, best])
+    if srt[-1] - srt[-2] < margin or (
+            d.hypothesis is not None
+            and hypothesis_name(FAULTS[best], change) == hypothesis_name(d.hypothesis, d.size)):
         return
     nv = int(bank.n_valid[i])
     d.revised, d.revised_llr = FAULTS[best], float(srt[-1] - srt[-2])
-    d.revised_size = float(bank.change[i, best, best])
+    d.revised_size = change
     d.revised_size_sd = float(bank.change_sd[i, best, best])
     d.revised_index = int(bank.k0[i]) + nv - 1
 

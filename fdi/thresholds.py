@@ -223,6 +223,9 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = 32, see
 
     from gsa import analyze, saltelli_design
 
+    if vote_rule not in VOTE_RULES:
+        raise ValueError(f"vote_rule: {vote_rule!r} is not one of {VOTE_RULES}")
+
     _init(plant.vector())
     preset(filter)  # a known filter name
     th0 = replace(Thresholds(), drift=drift, filter=filter, detector=detector, glr_start_s=glr_start_s,

@@ -918,6 +918,8 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     cols, rel = param_layout(cfg)
     q, p0 = noise_vectors(cfg)
     held = np.zeros((B, n), dtype=np.bool_) if held is None else np.asarray(held, dtype=np.bool_)
+    if held.shape != (B, n):
+        raise ValueError(f"run_filter: held has shape {held.shape}, expected {(B, n)}")
     if held[:, :N_MODEL].any():
         raise ValueError("run_filter: only parameter states (index >= N_MODEL) can be held")
     n_act = n - held.sum(axis=1)
@@ -955,6 +957,8 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     nis_limit = cfg.nis_factor * m if cfg.nis_factor > 0 else np.inf
     z0 = np.broadcast_to(z0, (B, n))
     P0 = np.broadcast_to(P0, (B, n, n))
+    if held.any() and any(np.any(P0[b][np.ix_(h, ~h)]) for b, h in enumerate(held) if h.any()):
+        raise ValueError("run_filter: a held state has prior covariance with a free one (P0)")
     _run(np.ascontiguousarray(z0[order], dtype=float), np.ascontiguousarray(P0[order], dtype=float), Qd, Rd,
          np.ascontiguousarray(inp.u[order], dtype=float), np.ascontiguousarray(y[order]),
          np.ascontiguousarray(pS[order]),

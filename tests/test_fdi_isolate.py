@@ -134,9 +134,10 @@ def test_staged_isolation_equals_one_bank_over_the_whole_window(bank_runs):
 
 def test_evidence_over_candidate_onsets(bank_runs):
     """run_bank_starts: with one candidate onset it is run_bank; with several, each
-    hypothesis' evidence is log mean_tau exp(L_none(k0..tau-1) + L_tau(tau..k)), recomputed
+    hypothesis' evidence is log mean_tau exp(L_none(k0..tau) + L_tau(tau+1..k)), recomputed
     here from the healthy filter of the bank from k0 and one bank per later start seeded from
-    that filter at tau, and its size and onset come from the start most likely at the end."""
+    that filter's posterior at tau (so y[tau] is counted once), and its size and onset come
+    from the start most likely at the end."""
     out, ref, rows, k0, k1, bank = bank_runs
     rows, k0, k1 = rows[:2], k0[:2], k1[:2]
     one = iso.run_bank_starts(out, ref, rows, k0, k1, k_alarm=k0)  # alarm at k0: one start
@@ -149,7 +150,7 @@ def test_evidence_over_candidate_onsets(bank_runs):
     cfg = iso.bank_config(ref.config)
     for i in range(2):
         L = int(k1[i] - k0[i])
-        R = np.concatenate([[0.0], first.loglik[i, 0, :L]])  # "none" is the first hypothesis
+        R = first.loglik[i, 0, :L]  # "none" is the first hypothesis
         E, banks = [first.loglik[i, :, :L]], [first]
         for tau in starts[1:]:
             off = tau - k0[i]
@@ -157,8 +158,8 @@ def test_evidence_over_candidate_onsets(bank_runs):
                                     first.params[i:i + 1, 0], first.healthy_mean[i:i + 1, off],
                                     first.healthy_var[i:i + 1, off], [tuple(iso.BANK)], False)
             e = np.empty((len(iso.BANK), L))
-            e[:, :off] = R[1:off + 1]
-            e[:, off:] = R[off] + b.loglik[0, :, :L - off]
+            e[:, :off + 1] = R[:off + 1]
+            e[:, off + 1:] = R[off] + b.loglik[0, :, 1:L - off] - b.loglik[0, :, :1]
             E.append(e)
             banks.append(b)
         mean = np.logaddexp.reduce(np.stack(E), axis=0) - math.log(len(starts))
@@ -307,3 +308,36 @@ def test_early_decision_revised_by_the_data_after_the_alarm():
     assert d.likelihood["revised_from"] == "K_int"
     assert d.likelihood["revised_lead_nats"] > iso.margin_for()
     assert "revised to offset-" in d.note
+
+
+def test_revision_rule_on_hand_made_evidence():
+    """_revise through decide_pair, on a hand-made several-faults bank whose single-fault
+    evidence at the window's end puts the offset ahead of every other single by 20 nats: an
+    early K_int decision is revised to the offset (with that filter's size); an early offset+
+    decision is revised when the later offset is negative (the other side); an early offset-
+    decision is kept; an early "not isolable" is resolved; a 3-nat lead revises nothing."""
+    H, L = len(iso.MULTI), 5
+
+    def bank(lead):
+        ll = np.zeros((1, H, L))
+        ll[0, :, -1] = -100.0  # pairs far behind
+        ll[0, :len(iso.FAULTS), -1] = [-lead, -lead - 1.0, -lead - 2.0, 0.0]  # K_int, K_extA, K_extB, offset
+        change = np.zeros((1, H, 4))
+        change[0, 3, 3] = -0.03  # the offset filter's change: -3 %
+        return iso.BankResult(k0=np.array([100]), loglik=ll, free=np.zeros((1, H, L)), free_sd=np.zeros((1, H, L)),
+                              healthy=np.zeros((1, H)), n_valid=np.array([L]), names=iso.MULTI, change=change,
+                              change_sd=np.full((1, H, 4), 1e-3), nis=np.full((1, H), 3.0))
+
+    def early(hyp, size):
+        llr = {h: (0.0 if h == (hyp or "K_int") else -1.0) for h in iso.FAULTS}
+        return iso.Decision(hyp, 50 if hyp else -1, [hyp] if hyp else ["K_int", "K_extA"], llr, 10.0, 40, 40,
+                            size, 1e-3)
+
+    m = iso.margin_for(0.01, len(iso.MULTI))
+    d = iso.decide_pair(bank(20.0), 0, m, early("K_int", 1e-9))
+    assert (d.revised, d.revised_size, d.revised_index) == ("offset", -0.03, 104)
+    assert d.revised_llr == pytest.approx(20.0)
+    assert iso.decide_pair(bank(20.0), 0, m, early("offset", +0.01)).revised == "offset"  # offset+ -> offset-
+    assert iso.decide_pair(bank(20.0), 0, m, early("offset", -0.02)).revised is None  # offset- confirmed
+    assert iso.decide_pair(bank(20.0), 0, m, early(None, float("nan"))).revised == "offset"  # resolved
+    assert iso.decide_pair(bank(3.0), 0, m, early("K_int", 1e-9)).revised is None  # below the margin

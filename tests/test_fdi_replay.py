@@ -339,3 +339,5 @@ def test_vote_rules_follow_the_sensitivity_studies():
                 assert votes == expect, (rule, p_)
             assert all(np.isfinite(rep["votes_snr_own"][p_]))
         assert ("votes specific" in th.source) == (rule == "specific")
+    with pytest.raises(ValueError, match="vote_rule"):
+        T.compute_thresholds(plant, N_leak=4, N_nuisance=4, vote_rule="detectible")

@@ -139,6 +139,11 @@ def test_held_states_equal_filterpy_on_the_free_states(plant_vector):
     assert np.abs(out.mean[0, -1, ukf.I_KEXTA] - out.mean[0, 0, ukf.I_KEXTA]) > 0  # free in run 0
     with pytest.raises(ValueError, match="parameter states"):
         run_filter(runs.inp, cfg, held=np.ones((2, n), dtype=bool))
+    with pytest.raises(ValueError, match="shape"):
+        run_filter(runs.inp, cfg, held=held[:, :-1])
+    P0[1][ukf.I_KEXTA, 0] = P0[1][0, ukf.I_KEXTA] = 1e-6  # a held state correlated with p_A
+    with pytest.raises(ValueError, match="covariance"):
+        run_filter(runs.inp, cfg, z0=z0, P0=P0, held=held)
 
 
 def test_innovation_log_likelihood_equals_filterpy(plant_vector):
