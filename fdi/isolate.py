@@ -26,7 +26,7 @@ at sample k_a:
    the first bank's healthy filter, and each hypothesis' evidence is averaged over the starts.
 4. **decision**: with L_H(k) = sum_{i=k0..k} log N(nu_H,i; 0, S_H,i), the innovation
    log-likelihood of filter H (averaged over the candidate onsets as above), the fault is
-   isolated as H at the first k >= k_a at which
+   isolated as H at the first k >= max(k_a, k0 + ``MIN_EVIDENCE_S``) at which
    L_H(k) exceeds every other fault hypothesis by ``margin`` nats (causal: data up to k).
    Otherwise "not isolable", with the hypotheses within the margin of the best.
 5. **size**: the free parameter of the isolated hypothesis' filter, from its most likely
@@ -121,6 +121,14 @@ ONSET_LEAD_S = 0.25
 #: 39 / 29 / 43) at half the cost.
 START_STEP_S = 0.1
 N_STARTS = 4
+#: s: the bank decides no earlier than this long after its first candidate onset k0, i.e.
+#: 0.35 s after the CUSUM's change-time estimate, nor before the alarm. The first tenths of a
+#: second after a step are a transient that every hypothesis' filter follows in its own way:
+#: wrong isolations came 0.04-0.12 s after the onset and were overturned by thousands of nats
+#: within the second. Chosen on DEVELOPMENT runs (the tune's cases with other seeds; 8 cases,
+#: 0.25-1 L/min, 1-5 %): wrong decisions 26 / 18 / 14 / 13 / 14 / 12 at 0 / 0.4 / 0.5 / 0.6 /
+#: 0.7 / 0.8 s, right 319 -> 331-333 from 0.5 s on; 0.6 s is the middle of that plateau.
+MIN_EVIDENCE_S = 0.6
 #: s: the bank runs at most this long after the alarm (replay): the isolation target counts
 #: 1 s, the size is read over the last SIZE_WINDOW_S of it, and on a long recording a bank run
 #: to the end would cost 5 filters for the rest of the record.
@@ -177,6 +185,12 @@ def bank_config(detect: FilterConfig = REFERENCE) -> FilterConfig:
                    theta_noise_floor=detect.theta_noise_floor, alpha=detect.alpha, beta=detect.beta,
                    kappa=detect.kappa, calibrate=(), disturb=(), freeze_calib_s=None,
                    constraint="project", clip_leaks=True, nis_factor=0.0)
+
+
+def earliest_decision(k_alarm, k0, dt: float):
+    """The first sample at which the bank may decide: the alarm, and MIN_EVIDENCE_S after the
+    bank's start k0 (scalars or arrays)."""
+    return np.maximum(k_alarm, k0 + int(round(MIN_EVIDENCE_S / dt)))
 
 
 def onset_index(g: np.ndarray, k_alarm: int, k_ready: int, dt: float) -> int:
@@ -626,8 +640,9 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     """Run the reference and the bank for every run (of ``rows``) that alarmed, batched;
     returns run -> Decision. A run's window is [k0, end of the record) or, with ``horizon_s``,
     [k0, alarm + horizon_s], never beyond ``k_stop``. In stages, so that the five filters run
-    only as long as a decision needs them: (1) the bank (all candidate onsets) up to the alarm,
-    decided there; (2) for runs not yet decided, the bank over the whole window; (3) with
+    only as long as a decision needs them: (1) the bank (all candidate onsets) up to the alarm
+    or MIN_EVIDENCE_S after its start, whichever is later (:func:`earliest_decision`), decided
+    there; (2) for runs not yet decided, the bank over the whole window; (3) with
     ``size``, the decided hypothesis' filter alone from its onset estimate over the whole
     window, whose last estimate is the size; (4) with
     ``pairs`` (several faults), every single fault and pair restarted after the alarm
@@ -650,15 +665,16 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
         k1 = np.minimum(k1, k_stop)
     k1 = np.maximum(k1, k0 + 1)
     ref = run_reference(out, rows, k0 + 1)
-    k_a1 = np.minimum(ka + 1, k1)  # stage 1: up to and including the alarm
+    kd = earliest_decision(ka, k0, dt)
+    k_a1 = np.minimum(kd + 1, k1)  # stage 1: up to and including the first sample it may decide at
     bank = run_bank_starts(out, ref, rows, k0, k_a1, ka)
-    decs = [decide(bank, i, int(ka[i]), margin) for i in range(len(rows))]
+    decs = [decide(bank, i, int(kd[i]), margin) for i in range(len(rows))]
     seeds = [start_seed(bank, i, d.onset) for i, d in enumerate(decs)]  # of the decided filter
     late = np.array([i for i, d in enumerate(decs) if d.hypothesis is None and k1[i] > k_a1[i]], dtype=np.int64)
     if len(late):  # stage 2: the undecided runs over their whole window
         bank2 = run_bank_starts(out, ref, rows[late], k0[late], k1[late], ka[late], ref_rows=late)
         for q, i in enumerate(late):
-            decs[i] = decide(bank2, q, int(ka[i]), margin)
+            decs[i] = decide(bank2, q, int(kd[i]), margin)
             seeds[i] = start_seed(bank2, q, decs[i].onset)
     if size:  # stage 3: the decided hypothesis alone from its onset estimate over the whole window
         for name in FAULTS:

@@ -121,7 +121,7 @@ def test_staged_isolation_equals_one_bank_over_the_whole_window(bank_runs):
     ref = iso.run_reference(out, rows, np.full(n, starts[-1] + 1))
     full = iso.run_bank_starts(out, ref, rows, kk0, np.full(n, k_end), ka)
     for i in range(n):
-        d = iso.decide(full, i, k_alarm, margin)
+        d = iso.decide(full, i, int(iso.earliest_decision(k_alarm, kk0[i], DT)), margin)
         assert (decs[i].hypothesis, decs[i].index) == (d.hypothesis, d.index)
         assert decs[i].onset in starts
         params, z0, var = iso.start_seed(full, i, decs[i].onset)
