@@ -586,7 +586,6 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     innov = np.empty(m)
     w = np.empty(m)
     Kg = np.empty((n, m))
-    Ssub_buf = np.empty((m, m))
     prow = np.empty(m)
     Qd = Qd.copy()
     nA = B  # active runs: b < nA (n_steps is non-increasing)
@@ -710,16 +709,12 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                 for j in range(n):
                     for c in range(mv):
                         Pxz[j, c] = Pf[j, idx[c]]
-                Ssub = Ssub_buf[:mv, :mv]
-                for c in range(mv):
-                    for e in range(mv):
-                        Ssub[c, e] = Sm[c, e]
                 Lsub = Ls[:mv, :mv]
-                ok = _cholesky(Ssub, Lsub, mv)
+                ok = _cholesky(Sm, Lsub, mv)
                 if ok:
                     for c in range(mv):
                         innov[c] = y[b, k, idx[c]] - zp[c]
-                        out_nu[b, k, idx[c]] = innov[c] / math.sqrt(Ssub[c, c])
+                        out_nu[b, k, idx[c]] = innov[c] / math.sqrt(Sm[c, c])
                     _chol_solve(Lsub, innov[:mv], w[:mv], ysol[:mv])
                     nis = 0.0
                     for c in range(mv):
