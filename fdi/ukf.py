@@ -458,7 +458,7 @@ def _ut_measure_exact(Pm, z, n_pts, Lc, Wm0, Wc0, wc, pos_kind, L1, L2, L3, zf, 
 def _ut_measure_sigma(sig, z, Wm, Wc, pos_kind, L1, L2, L3, hs, col, zf, Sf, Pf):
     """The unscented transform of the measurement through the sigma points sig (2n+1, n)
     directly: zf (m,), Sf (m, m) without R, Pf (n, m). The fallback of _ut_measure_exact."""
-    ns, n = sig.shape
+    ns = sig.shape[0]
     m = zf.shape[0]
     for i in range(ns):
         _measure(sig[i], pos_kind, L1, L2, L3, col)
@@ -469,18 +469,20 @@ def _ut_measure_sigma(sig, z, Wm, Wc, pos_kind, L1, L2, L3, hs, col, zf, Sf, Pf)
         for i in range(ns):
             acc += Wm[i] * hs[i, c]
         zf[c] = acc
-    for c in range(m):
-        for e in range(m):
+    _weighted_cross(hs[:ns], zf, hs[:ns], zf, Wc, Sf)
+    _weighted_cross(sig, z, hs[:ns], zf, Wc, Pf)
+
+
+@_jit_inline
+def _weighted_cross(X, x_mean, Y, y_mean, W, out):
+    """out[j, c] = sum_i W[i] (X[i, j] - x_mean[j]) (Y[i, c] - y_mean[c]): the unscented
+    transform's (cross-)covariance of the points X (ns, p) and Y (ns, q)."""
+    for j in range(X.shape[1]):
+        for c in range(Y.shape[1]):
             acc = 0.0
-            for i in range(ns):
-                acc += Wc[i] * (hs[i, c] - zf[c]) * (hs[i, e] - zf[e])
-            Sf[c, e] = acc
-    for j in range(n):
-        for c in range(m):
-            acc = 0.0
-            for i in range(ns):
-                acc += Wc[i] * (sig[i, j] - z[j]) * (hs[i, c] - zf[c])
-            Pf[j, c] = acc
+            for i in range(X.shape[0]):
+                acc += W[i] * (X[i, j] - x_mean[j]) * (Y[i, c] - y_mean[c])
+            out[j, c] = acc
 
 
 @numba.njit(cache=True)
