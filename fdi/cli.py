@@ -33,7 +33,8 @@ def add_commands(subparsers) -> None:
     g = sub.add_parser("thresholds", help="thresholds from the leakage and nuisance Sobol' studies (prints them)")
     g.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
     g.add_argument("--n-leak", type=int, default=16, help="base sample size of the leakage GSA (power of 2)")
-    g.add_argument("--n-nuisance", type=int, default=32, help="base sample size of the nuisance GSA (power of 2)")
+    g.add_argument("--n-nuisance", type=int, default=128,
+                   help="base sample size of the nuisance GSA (power of 2; its 2N distinct experiments set h)")
     g.add_argument("--workers", type=int, default=1, help="local worker processes")
     g.add_argument("--filter", default="shipped",
                    help="filter configuration to derive the thresholds for (a name in fdi.ukf.PRESETS: shipped, calibrated, "
