@@ -91,7 +91,7 @@ def _thresholds(args) -> int:
         raise UserError(f"--filter: unknown filter {args.filter!r}; known: {', '.join(PRESETS)}")
     th, report = compute_thresholds(_plant(args), N_leak=args.n_leak, N_nuisance=args.n_nuisance,
                                     workers=args.workers, filter=args.filter, detector=args.detector,
-                                    vote_rule=args.votes)
+                                    vote_rule=args.votes, progress=True)
     print(describe(th))
     for p in write_thresholds(th, report, Path(args.out)):
         print(f"wrote {p}")

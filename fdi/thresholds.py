@@ -196,13 +196,29 @@ def _problems():
     return lp, npb
 
 
-def _evaluate(model, X, th, workers: int, chunk: int = 32):
+def _evaluate(model, X, th, workers: int, chunk: int = 32, progress: str | None = None):
+    """model(rows, th) over X in chunks of ``chunk`` rows, in order; ``progress``: the label
+    of a progress bar (None: silent)."""
+    from tqdm import tqdm
+
     parts = [X[i:i + chunk] for i in range(0, len(X), chunk)]
+    bar = tqdm(total=len(X), desc=progress, unit="run", disable=progress is None)
+
+    def collect(mapper):
+        out = []
+        for p, res in zip(parts, mapper(model, parts, [th] * len(parts))):
+            out.append(res)
+            bar.update(len(p))
+        return out
+
     if workers > 1:
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(workers, initializer=_init, initargs=(_NOMINAL,)) as ex:
-            return list(ex.map(model, parts, [th] * len(parts)))
-    return [model(p, th) for p in parts]
+            out = collect(ex.map)
+    else:
+        out = collect(map)
+    bar.close()
+    return out
 
 
 def _init(nominal):
@@ -222,7 +238,8 @@ def _gumbel_quantile(x: np.ndarray, p: float) -> float:
 def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISANCE, seed: int = 2011,
                        workers: int = 1, fa_level: float = FA_LEVEL, drift: float = 1.0,
                        filter: str = "shipped", detector: str = "cusum", glr_start_s: float = 0.0,
-                       glr_window_s: float = 0.5, vote_rule: str = "detectable") -> tuple[Thresholds, dict]:
+                       glr_window_s: float = 0.5, vote_rule: str = "detectable",
+                       progress: bool = False) -> tuple[Thresholds, dict]:
     """Run both studies and derive the thresholds. Returns (thresholds, report). ``vote_rule``
     (:data:`VOTE_RULES`): "detectable" (the default: a residual votes for f where f's share of
     it over the leakage box is at least VOTE_SNR healthy spreads; for the "likelihood"
@@ -249,11 +266,12 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
         warnings.simplefilter("ignore")
         # ---- (a) leakage GSA: which residual votes for which fault, in which regime
         d_leak = saltelli_design(lp, N_leak, seed)
-        Y_leak = np.vstack(_evaluate(_leak_model, d_leak.X, th0, workers))
+        Y_leak = np.vstack(_evaluate(_leak_model, d_leak.X, th0, workers,
+                                     progress="leakage GSA" if progress else None))
         r_leak = analyze(lp, d_leak, Y_leak, n_boot=0, output_names=names)
         # ---- (b) nuisance GSA: healthy variance per residual and regime
         d_nui = saltelli_design(npb, N_nuisance, seed + 1)
-        parts = _evaluate(_nuisance_model, d_nui.X, th0, workers)
+        parts = _evaluate(_nuisance_model, d_nui.X, th0, workers, progress="nuisance GSA" if progress else None)
         r_nui = analyze(npb, d_nui, np.vstack([p[0] for p in parts]), n_boot=0, output_names=names)
     Y_nui = np.vstack([p[0] for p in parts])
     dev = np.concatenate([p[1][0] for p in parts])
