@@ -31,9 +31,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from sam.errors import did_you_mean
-
 from sam import P
+from sam.errors import did_you_mean
 
 from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, FilterOutput, leak_lpm
 
@@ -101,7 +100,7 @@ class Thresholds:
     #: Pa; chamber pressures within this of the supply and of the tank pressure are "pinned"
     #: (:func:`pinned`: stalled or on an end stop, no flow): the change tests of the parameters
     #: that are then unobservable are held. 15 sensor noise std (20 kPa), 3 % of the supply.
-    saturation_Pa: float = 0.3e6
+    pin_margin_Pa: float = 0.3e6
     nis_limit: float = 9.0  #: weighted NIS (3 channels; mean 3) above this is a model-fit alarm
     nis_hold_s: float = 0.5  #: ... when held this long
     false_alarm_level: float = 0.01  #: the level the h were chosen for (per run)
@@ -192,7 +191,7 @@ def regimes(u: np.ndarray, dt: float, band: float = 0.3, transient_s: float = 0.
 
 def pinned(out: FilterOutput, th: "Thresholds") -> np.ndarray:
     """(B, T, 2) bool: the chamber pressures pinned to the rails, [..., 0] A within
-    ``th.saturation_Pa`` of the supply and B within it of the tank pressure, [..., 1] the other
+    ``th.pin_margin_Pa`` of the supply and B within it of the tank pressure, [..., 1] the other
     way round: the cylinder is stalled against its load or held on an end stop with the valve
     open, and no oil flows but the leaks. Pressures are the filter's posterior means (finite
     through NaN gaps); the supply is the measured p_S when the recording has it, else the
@@ -202,8 +201,8 @@ def pinned(out: FilterOutput, th: "Thresholds") -> np.ndarray:
         return np.zeros((B, T, 2), dtype=bool)
     p_S = out.inp.params[:, P.p_S][:, None] if out.inp.pS is None else np.nan_to_num(out.inp.pS, nan=np.inf)
     p_T = out.inp.params[:, P.p_T][:, None]
-    hi = out.mean[:, :, :2] >= (p_S - th.saturation_Pa)[..., None]
-    lo = out.mean[:, :, :2] <= (p_T + th.saturation_Pa)[..., None]
+    hi = out.mean[:, :, :2] >= (p_S - th.pin_margin_Pa)[..., None]
+    lo = out.mean[:, :, :2] <= (p_T + th.pin_margin_Pa)[..., None]
     return np.stack([hi[..., 0] & lo[..., 1], hi[..., 1] & lo[..., 0]], axis=2)
 
 
@@ -325,7 +324,6 @@ def statistics(out: FilterOutput, th: Thresholds, baseline=None) -> dict[str, np
     for h, (j, sign) in HYPOTHESES.items():
         param = h.rstrip("+-")
         active = np.asarray(th.votes[param], dtype=bool)[reg] & ~hidden[:, list(PARAMS).index(param)]
-
         stats[h] = cusum(sign * chg[param], th.drift, dt, warm, active)
     return stats
 
@@ -414,7 +412,7 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
         conf[h] = _normal_cdf(sign * m / max(s_tot, 1e-300))
     health = {"nan_samples": int(out.n_nan[b]), "jitter_events": int(out.n_jitter[b]),
               "covariance_resets": int(out.n_cov_reset[b]), "state_resets": int(out.n_state_reset[b]),
-              # stalled or on an end stop at supply / tank pressure: the offset's change test is held
+              # stalled or on an end stop at supply / tank pressure: the tests it hides are held
               "pinned_s": float(pinned(out, th)[b].any(axis=1).sum() * (t[1] - t[0] if len(t) > 1 else 0.0))}
     names = sorted(alarms, key=alarms.get)
     note = ""

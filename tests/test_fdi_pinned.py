@@ -18,7 +18,7 @@ from fdi.ukf import POS_X, FilterInput, FilterOutput, run_filter
 
 DT = 1e-3
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
-NO_PINNING = -1.0  #: saturation_Pa below zero: nothing is ever pinned
+NO_PINNING = -1.0  #: pin_margin_Pa below zero: nothing is ever pinned
 
 
 def _end_stop_run():
@@ -42,7 +42,7 @@ def test_end_stop_creep_is_held_not_alarmed():
     hidden = held(out, th)[0][:, int(2 / DT):].all(axis=1)
     assert dict(zip(PARAMS, hidden)) == {"K_int": False, "K_extA": True, "K_extB": False, "offset": True}
     assert diagnose(out, th, 0).status == "healthy"
-    unheld = diagnose(out, replace(th, saturation_Pa=NO_PINNING), 0)
+    unheld = diagnose(out, replace(th, pin_margin_Pa=NO_PINNING), 0)
     assert "K_extA" in unheld.alarms
 
 
