@@ -229,6 +229,9 @@ def _figure(path: Path, t, out, res, stats, th, diag) -> None:
     for i, (h, g) in enumerate(stats.items()):
         ax3.plot(t, g[0] / th.h[h], f"C{i}", label=f"CUSUM {h} / h")
     ax3.axhline(1.0, color="k", ls="--", label="threshold")
+    if "pinned" in res and res["pinned"][0].any():  # stalled / end stop: some tests held
+        ax3.fill_between(t, 0, 1, where=res["pinned"][0] > 0, transform=ax3.get_xaxis_transform(),
+                         color="0.85", label="pinned at supply / tank (tests held)")
     ax3.set_ylabel("statistic / threshold")
     ax3.set_xlabel("t [s]")
     ax3.legend(loc="upper left", fontsize=8)
