@@ -17,8 +17,12 @@ def add_commands(subparsers) -> None:
     r.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
     r.add_argument("--out", required=True, help="output folder")
     r.add_argument("--thresholds", help="thresholds.toml from `samfdi fdi thresholds` (default: the shipped one)")
-    r.add_argument("--baseline", help="healthy reference recording of the same machine: its estimates are the "
-                   "baseline the change test compares against (default: the first second of this recording)")
+    r.add_argument("--reference", help="healthy recording of the same machine: the notch flows and bulk modulus "
+                   "learnt there replace the plant file's (recommended; the change test keeps this recording's "
+                   "own baseline)")
+    r.add_argument("--baseline", help="healthy recording of the same machine: its estimates are the baseline the "
+                   "change test compares against, for a fault present from the start (default: the first second "
+                   "of this recording; costs false alarms when the loads differ, docs/fdi.md)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
     r.add_argument("--drop-out-of-range", action="store_true",
                    help="treat pressure samples outside 0-25 MPa as missing instead of refusing the file")
@@ -108,14 +112,19 @@ def _replay(args) -> int:
     rec = read_recording(args.recording)
     th = _load_thresholds(args.thresholds)
     base = read_recording(args.baseline) if args.baseline else None
+    ref = read_recording(args.reference) if args.reference else None
     diag = replay_recording(rec, plant, args.out, force=args.force, thresholds=th,
-                            drop_out_of_range=args.drop_out_of_range, baseline=base)
+                            drop_out_of_range=args.drop_out_of_range, baseline=base, reference=ref)
     line = f"{diag.status}"
-    if diag.isolated:
-        line += ": " + ", ".join(
-            f"{h} {diag.size[h]['value']:.3g} {diag.size[h]['unit']} (alarm t = {diag.alarms[h]:.3f} s)"
-            for h in diag.isolated)
+    if diag.isolated:  # the bank may name another hypothesis than the one that alarmed first
+        line += ": " + ", ".join(f"{h} {diag.size[h]['value']:.3g} {diag.size[h]['unit']}" if h in diag.size else h
+                                 for h in diag.isolated)
+        line += f" (alarm t = {diag.detection_time_s:.3f} s)"
     print(line)
+    cal = diag.filter_health.get("calibrated_from_reference")
+    if cal:
+        print("calibrated from the reference: " + ", ".join(
+            f"{k} x{v['factor']:.4f} (+-{100 * v['relative_sd']:.2f} %)" for k, v in cal.items()))
     if diag.filter_health.get("nan_samples"):
         print(f"predicted through {diag.filter_health['nan_samples']} sample(s) with missing measurements")
     print(f"wrote {Path(args.out)}/estimates.csv, residuals.csv, diagnosis.json, replay.png")

@@ -15,6 +15,7 @@ import numpy as np
 from sam import P, Plant, Recording, UserError, simulate_batch
 from sam.geometry import piston_position
 
+from . import calibration
 from .detect import HYPOTHESES, Diagnosis, Thresholds, diagnose, residuals, statistics
 from .ukf import (
     FAULT_STATES, POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
@@ -105,31 +106,49 @@ def check_observable(inp: FilterInput, plant: Plant, name: str = "plant") -> Non
                 f"only {effect:.3g} Pa (< the 20 kPa sensor noise); check B_eff, V_0A, V_0B and the valve flows")
 
 
-def reference_baseline(ref: Recording, plant: Plant, cfg: FilterConfig = FilterConfig(), *,
+def learn_reference(ref: Recording, plant: Plant, cfg: FilterConfig, *,
+                    drop_out_of_range: bool = False) -> calibration.Calibration:
+    """The machine constants (notch flows, bulk modulus) that ``cfg``'s calibration states
+    learn on a healthy reference recording of the same machine (:mod:`fdi.calibration`)."""
+    inp, _ = filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)
+    return calibration.learn(run_filter(inp, cfg), cfg)
+
+
+def reference_baseline(ref: Recording, plant: Plant, cfg: FilterConfig = FilterConfig(),
+                       cal: calibration.Calibration | None = None, *,
                        drop_out_of_range: bool = False) -> np.ndarray:
     """(1, 4) healthy baseline of the fault estimates from a reference recording of the same
-    machine: the mean of each estimate over the second half of the reference."""
-    ref = ref.measured()
-    inp, _ = filter_input(ref, plant, drop_out_of_range=drop_out_of_range)
-    out = run_filter(inp, cfg)
+    machine: the mean of each estimate over the second half of the reference, filtered with the
+    calibration ``cal`` if the replay uses one."""
+    inp, _ = filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)
+    out = run_filter(*(calibration.apply(inp, cfg, cal) if cal is not None else (inp, cfg)))
     half = out.mean.shape[1] // 2
     return np.array([[out.mean[0, half:, j].mean() for j in FAULT_STATES]])
 
 
 def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
            thresholds: Thresholds | None = None, drop_out_of_range: bool = False,
-           baseline: Recording | np.ndarray | None = None):
+           baseline: Recording | np.ndarray | None = None, reference: Recording | None = None):
     """Filter one recording and diagnose it. Returns (output, residuals, stats, diagnosis, info).
 
-    ``baseline``: a healthy reference recording (or its (1, 4) baseline values); default:
-    the recording's own estimates over the baseline window of the thresholds."""
+    ``reference``: a healthy recording of the same machine whose learnt notch flows and bulk
+    modulus replace the plant file's (:func:`learn_reference`); the change test keeps its own
+    baseline. ``baseline``: a healthy recording whose estimates are the baseline instead
+    (:func:`reference_baseline`; for faults present from the start), or (1, 4) baseline
+    values; default: the recording's own estimates over the baseline window of the thresholds."""
     thresholds = Thresholds.shipped() if thresholds is None else thresholds
     cfg = preset(thresholds.filter) if cfg is None else cfg  # the filter the thresholds were made for
     rec = rec.measured()  # never the true_* columns
     inp, info = filter_input(rec, plant, drop_out_of_range=drop_out_of_range)
     check_observable(inp, plant, str(rec.source or "recording"))
+    cal = None
+    if reference is not None:
+        cal = learn_reference(reference, plant, cfg, drop_out_of_range=drop_out_of_range)
+        info["calibrated_from_reference"] = cal.to_json()
     if isinstance(baseline, Recording):
-        baseline = reference_baseline(baseline, plant, cfg, drop_out_of_range=drop_out_of_range)
+        baseline = reference_baseline(baseline, plant, cfg, cal, drop_out_of_range=drop_out_of_range)
+    if cal is not None:
+        inp, cfg = calibration.apply(inp, cfg, cal)
     out = run_filter(inp, cfg)
     out.t = rec.t - rec.t[0]
     stats = statistics(out, thresholds, baseline)
@@ -143,7 +162,7 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
 
 def replay_recording(rec: Recording, plant: Plant, out_dir, *, force: bool = False,
                      thresholds: Thresholds | None = None, drop_out_of_range: bool = False,
-                     figure: bool = True, baseline=None) -> Diagnosis:
+                     figure: bool = True, baseline=None, reference=None) -> Diagnosis:
     """Replay and write estimates.csv, residuals.csv, diagnosis.json and replay.png into out_dir."""
     out_dir = Path(out_dir)
     existing = [f for f in OUTPUT_FILES if (out_dir / f).exists()]
@@ -153,7 +172,7 @@ def replay_recording(rec: Recording, plant: Plant, out_dir, *, force: bool = Fal
         raise UserError(f"{out_dir}: exists and is not a folder")
     thresholds = Thresholds.shipped() if thresholds is None else thresholds
     out, res, stats, diag, info = replay(rec, plant, thresholds=thresholds, drop_out_of_range=drop_out_of_range,
-                                         baseline=baseline)
+                                         baseline=baseline, reference=reference)
     out_dir.mkdir(parents=True, exist_ok=True)
     t = rec.t
     _write_estimates(out_dir / "estimates.csv", t, out)
