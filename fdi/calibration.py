@@ -36,35 +36,38 @@ SD_INFLATION = 2.0
 
 @dataclass(frozen=True)
 class Calibration:
-    """What a healthy reference recording taught about the machine."""
+    """What healthy reference recordings taught about their machines, one per run."""
 
-    factor: dict  #: parameter name -> multiplier of its nominal value (1 + learnt relative error)
-    sd: dict  #: parameter name -> relative std of that error at the reference's end
+    factor: dict  #: parameter name -> (B,) multiplier of its nominal value (1 + learnt relative error)
+    sd: dict  #: parameter name -> (B,) relative std of that error at the reference's end
 
-    def to_json(self) -> dict:
-        return {name: {"factor": self.factor[name], "relative_sd": self.sd[name]} for name in self.factor}
+    def to_json(self, b: int = 0) -> dict:
+        """Run b's factors and stds, parameter name -> {"factor", "relative_sd"}."""
+        return {name: {"factor": float(self.factor[name][b]), "relative_sd": float(self.sd[name][b])}
+                for name in self.factor}
 
 
 def learn(out: FilterOutput, cfg: FilterConfig) -> Calibration:
-    """The machine states of :data:`MACHINE_STATES` that ``cfg`` estimates, read from run 0 of
-    ``out`` (a filter run of ``cfg`` over a healthy recording) at its last sample."""
+    """The machine states of :data:`MACHINE_STATES` that ``cfg`` estimates, read from every run
+    of ``out`` (a filter run of ``cfg`` over healthy recordings) at its last sample."""
     names = [n for n in cfg.calibrate if n in MACHINE_STATES]
     j = {n: state_names(cfg).index(f"c_{n}") for n in names}
-    return Calibration(factor={n: float(1.0 + out.mean[0, -1, j[n]]) for n in names},
-                       sd={n: float(out.std[0, -1, j[n]]) for n in names})
+    return Calibration(factor={n: 1.0 + out.mean[:, -1, j[n]] for n in names},
+                       sd={n: out.std[:, -1, j[n]].copy() for n in names})
 
 
 def apply(inp: FilterInput, cfg: FilterConfig, cal: Calibration) -> tuple[FilterInput, FilterConfig]:
-    """``inp`` with each calibrated parameter's nominal value multiplied by its factor, and
-    ``cfg`` with that calibration state's prior std set to SD_INFLATION times the reference's
-    (at least MIN_PRIOR_SD); its random walk is unchanged."""
+    """``inp`` with each calibrated parameter's nominal value multiplied by its run's factor,
+    and ``cfg`` with that calibration state's prior std set to SD_INFLATION times the
+    reference's (the median over the runs: one configuration serves the batch), at least
+    MIN_PRIOR_SD; its random walk is unchanged."""
     params = inp.params.copy()
     for name, f in cal.factor.items():
         params[:, P[name]] *= f
     over = {name: (p0, q) for name, p0, q in cfg.calib_noise}
     for name, sd in cal.sd.items():
         q = over.get(name, (cfg.p0_calib, cfg.q_calib))[1]
-        over[name] = (max(SD_INFLATION * sd, MIN_PRIOR_SD), q)
+        over[name] = (max(SD_INFLATION * float(np.median(sd)), MIN_PRIOR_SD), q)
     noise = tuple((name, p0, q) for name, (p0, q) in over.items())
     return replace(inp, params=params), cfg.with_(calib_noise=noise)
 

@@ -61,6 +61,9 @@ def add_commands(subparsers) -> None:
     t.add_argument("--runs", type=int, default=100, help="healthy runs (fault runs: runs/5 per type and size)")
     t.add_argument("--workers", type=int, default=1, help="local worker processes (dask)")
     t.add_argument("--scheduler", help="dask scheduler address, e.g. tcp://host:8786")
+    t.add_argument("--reference", action="store_true",
+                   help="calibrate every Monte Carlo machine on a healthy reference recording of its own first "
+                   "(as `fdi replay --reference` does)")
     t.add_argument("--out", required=True, help="output folder (re-run the same command to resume)")
     t.set_defaults(func=_tune)
 
@@ -152,7 +155,7 @@ def _tune(args) -> int:
     if args.workers < 1:
         raise UserError(f"--workers: must be >= 1, got {args.workers}")
     m = run_tune(_plant(args), Path(args.out), n_runs=args.runs, workers=args.workers, scheduler=args.scheduler,
-                 thresholds=_load_thresholds(args.thresholds))
+                 thresholds=_load_thresholds(args.thresholds), reference=args.reference)
     print(Path(args.out, "metrics.md").read_text())
     tm = m["timing"]
     print(f"{tm['runs_computed']} runs in {tm['wall_s']:.1f} s with {tm['workers']} worker(s) "

@@ -65,7 +65,22 @@ def make_batch(plant: Plant, n: int, seed: int, *, fault: str | None = None, siz
         faults = {fault: np.stack([profile("step", value, t, t0=float(o)) for o in onset_s])}
     nominal = np.tile(plant.vector(), (n, 1))
     runs = simulate_runs(truth, u, dt, faults=faults, nominal=nominal, seed=seed + 1)
+    runs.truth["params"] = truth  #: (B, len(P)) each run's true plant (its machine)
     runs.truth["m_L_kg"] = truth[:, P.m_L]  #: (B,) the unknown load of each run
     runs.truth["onset_s"] = onset_s  #: (B,) the fault onset of each run [s]
     runs.truth["k_onset"] = k_onset  #: (B,) its sample index
     return runs
+
+
+def make_reference_batch(plant: Plant, machines: np.ndarray, seed: int, *, duration: float = 4.0,
+                         dt: float = 1e-3):
+    """A healthy reference recording of each machine (rows of ``machines``, (B, len(P)): the
+    truth of a :func:`make_batch`), as a lab would record one before monitoring: the same
+    valve, cylinder and fluid, another load (uniform over LOAD_RANGE) and another input, from
+    their own generator (seed, 99), so that the batch's own draws are unchanged."""
+    rng = np.random.default_rng((seed, 99))
+    n = len(machines)
+    truth = np.array(machines, dtype=float, copy=True)
+    truth[:, P.m_L] = rng.uniform(*LOAD_RANGE, n)
+    t = np.arange(int(round(duration / dt)) + 1) * dt
+    return simulate_runs(truth, draw_inputs(n, t, rng), dt, nominal=np.tile(plant.vector(), (n, 1)), seed=seed + 7)

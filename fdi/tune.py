@@ -27,9 +27,9 @@ import numpy as np
 
 from sam import Plant, UserError
 
-from . import isolate
+from . import calibration, isolate
 from .detect import HYPOTHESES, Thresholds, statistics
-from .montecarlo import make_batch
+from .montecarlo import make_batch, make_reference_batch
 from .ukf import preset, run_filter
 
 FAULT_SIZES = {"K_int": (0.1, 0.25, 0.5, 1.0), "K_extA": (0.1, 0.25, 0.5, 1.0),
@@ -49,13 +49,19 @@ def draw_onsets(n: int, seed: int) -> np.ndarray:
     return np.round(rng.uniform(ONSET_MIN, ONSET_MAX, n) / DT) * DT
 
 
-def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed):
+def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, reference: bool = False):
     """Filter one chunk; per run and hypothesis: first alarm index (-1: none) and the
     maxima of g/h before the run's onset, within 1 s after it, and over the run; per run
-    the onset index ``k_onset``."""
+    the onset index ``k_onset``. ``reference``: each machine is first calibrated on a healthy
+    reference recording of its own (:func:`fdi.montecarlo.make_reference_batch`,
+    :mod:`fdi.calibration`), as ``fdi replay --reference`` does."""
     onset = ONSET if fault is None else draw_onsets(n, seed)
     runs = make_batch(plant, n, seed, fault=fault, size=size, duration=DURATION, onset=onset)
-    out = run_filter(runs.inp, preset(th.filter))
+    inp, cfg = runs.inp, preset(th.filter)
+    if reference:
+        ref = make_reference_batch(plant, runs.truth["params"], seed, duration=DURATION)
+        inp, cfg = calibration.apply(inp, cfg, calibration.learn(run_filter(ref.inp, cfg), cfg))
+    out = run_filter(inp, cfg)
     st, th = _alarm_statistics(out, th)
     k0 = runs.truth["k_onset"]
     res = _window_maxima(st, th, k0)
@@ -149,23 +155,26 @@ def _jobs(n_runs: int):
 
 
 def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, scheduler: str | None = None,
-             progress: bool = True, thresholds: Thresholds | None = None) -> dict:
+             progress: bool = True, thresholds: Thresholds | None = None, reference: bool = False) -> dict:
+    """The Monte Carlo into ``out_dir`` (resumable); ``reference``: every machine calibrated on a
+    healthy reference recording first (its chunks are tagged apart)."""
     out_dir = Path(out_dir)
     chunk_dir = out_dir / "chunks"
     chunk_dir.mkdir(parents=True, exist_ok=True)
     th = Thresholds.shipped() if thresholds is None else thresholds
     (out_dir / "thresholds_used.json").write_text(th.to_json() + "\n")
     jobs = _jobs(n_runs)
-    old = [p for p in chunk_dir.glob("*.npz") if not p.stem.endswith(f"_{CHUNK_VERSION}")]
+    tag = _tag(reference)
+    old = [p for p in chunk_dir.glob("*.npz") if not p.stem.endswith(f"_{tag}")]
     if old and progress:
-        print(f"fdi tune: ignoring {len(old)} chunk file(s) of an older layout in {chunk_dir} "
-              f"(not {CHUNK_VERSION!r}: fixed onset)")
-    todo = [j for j in jobs if not _chunk_path(chunk_dir, j).exists()]
+        print(f"fdi tune: ignoring {len(old)} chunk file(s) in {chunk_dir} of an older layout or of the "
+              f"other --reference mode (this run's tag: {tag!r})")
+    todo = [j for j in jobs if not _chunk_path(chunk_dir, j, tag).exists()]
     from tqdm import tqdm
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="fdi tune", unit="chunk", disable=not progress)
 
     def save(job, res):
-        np.savez(_chunk_path(chunk_dir, job), **res)
+        np.savez(_chunk_path(chunk_dir, job, tag), **res)
         bar.update(1)
 
     t0 = time.perf_counter()
@@ -177,7 +186,7 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
             raise UserError("--scheduler needs dask[distributed]") from None
         client = Client(scheduler)
         try:
-            futs = {client.submit(_chunk_job, plant, th, j[1], j[2], j[3], j[4], pure=False): j for j in todo}
+            futs = {client.submit(_chunk_job, plant, th, *j[1:], reference, pure=False): j for j in todo}
             for fut in as_completed(futs):
                 save(futs[fut], fut.result())
         finally:
@@ -185,27 +194,33 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
     elif workers > 1:
         from concurrent.futures import ProcessPoolExecutor, as_completed
         with ProcessPoolExecutor(workers) as ex:
-            futs = {ex.submit(_chunk_job, plant, th, j[1], j[2], j[3], j[4]): j for j in todo}
+            futs = {ex.submit(_chunk_job, plant, th, *j[1:], reference): j for j in todo}
             for fut in as_completed(futs):
                 save(futs[fut], fut.result())
     else:
         for j in todo:
-            save(j, _chunk_job(plant, th, j[1], j[2], j[3], j[4]))
+            save(j, _chunk_job(plant, th, *j[1:], reference))
     bar.close()
     wall = time.perf_counter() - t0
-    metrics = analyse(out_dir, jobs, th)
+    metrics = analyse(out_dir, jobs, th, tag)
+    metrics["reference"] = reference
     metrics["timing"] = {"runs_computed": n_todo, "wall_s": wall, "workers": workers,
                          "s_per_1000_runs": wall / max(n_todo, 1) * 1000}
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     return metrics
 
 
-def _chunk_path(chunk_dir: Path, job) -> Path:
-    return Path(chunk_dir) / f"{job[0]}_{job[4]}_{CHUNK_VERSION}.npz"
+def _tag(reference: bool) -> str:
+    """Chunk file tag: the layout version, "c" appended for a tune with --reference."""
+    return CHUNK_VERSION + ("c" if reference else "")
 
 
-def _load(chunk_dir, jobs, name):
-    parts = [np.load(_chunk_path(chunk_dir, j)) for j in jobs if j[0] == name]
+def _chunk_path(chunk_dir: Path, job, tag: str = CHUNK_VERSION) -> Path:
+    return Path(chunk_dir) / f"{job[0]}_{job[4]}_{tag}.npz"
+
+
+def _load(chunk_dir, jobs, name, tag: str = CHUNK_VERSION):
+    parts = [np.load(_chunk_path(chunk_dir, j, tag)) for j in jobs if j[0] == name]
     keys = ("first", "max", "m_L", "k_onset") + (("iso_h", "iso_k") if all("iso_h" in p for p in parts) else ())
     return {k: np.concatenate([p[k] for p in parts]) for k in keys}
 
@@ -214,9 +229,9 @@ def _load_bin(m):
     return np.digitize(m, [b[1] for b in LOAD_BINS[:-1]])
 
 
-def analyse(out_dir: Path, jobs, th: Thresholds) -> dict:
+def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> dict:
     chunk_dir = Path(out_dir) / "chunks"
-    healthy = _load(chunk_dir, jobs, "healthy")
+    healthy = _load(chunk_dir, jobs, "healthy", tag)
     hmax = healthy["max"][:, :, 2].max(axis=1)  # per run: max over hypotheses of g/h
     fa_runs = hmax > 1.0
     fa = float(fa_runs.mean())
@@ -228,7 +243,7 @@ def analyse(out_dir: Path, jobs, th: Thresholds) -> dict:
     for fault, sizes in FAULT_SIZES.items():
         for size in sizes:
             name = f"{fault}_{size:g}"
-            d = _load(chunk_dir, jobs, name)
+            d = _load(chunk_dir, jobs, name, tag)
             k0 = d["k_onset"]  # (runs,) each run's own onset
             first = np.where(d["first"] >= 0, d["first"], 10**9)
             any_alarm = first.min(axis=1)
@@ -277,6 +292,8 @@ def analyse(out_dir: Path, jobs, th: Thresholds) -> dict:
     bins = [f"{int(a)}-{int(round(b))} kg" for a, b in LOAD_BINS]
     lines = ["# FDI tuning metrics", "",
              f"Thresholds: {th.source} (not fitted to these runs).", "",
+             *(["Every machine was first calibrated on a healthy 4 s reference recording of its own (another "
+                 "load and input): `--reference`, as `fdi replay --reference` does.", ""] if tag != CHUNK_VERSION else []),
              f"Held-out healthy runs: {len(hmax)} x {DURATION:g} s; false-alarm rate (any alarm per run): {fa:.3f}; "
              "by load " + ", ".join(f"{b}: {v:.3f}" for b, v in zip(bins, fa_by_load)), "",
              f"Each fault run steps in at its own onset, uniform in [{ONSET_MIN:g}, {ONSET_MAX:g}] s; "

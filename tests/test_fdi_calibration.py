@@ -45,9 +45,10 @@ def test_learn_recovers_the_machine_from_a_healthy_cycle():
     inp, _ = filter_input(_recording("cycle", 300.0, 6.0, seed=3), load_plant())
     cal = calibration.learn(run_filter(inp, cfg), cfg)
     assert set(cal.factor) == set(TRUE_FACTOR)
+    factor, sd = ({k: v[0] for k, v in d.items()} for d in (cal.factor, cal.sd))  # run 0 of 1
     for name, f in TRUE_FACTOR.items():
-        assert abs(cal.factor[name] - f) < 3 * calibration.SD_INFLATION * cal.sd[name], name
-    assert abs(cal.factor["Q_N_AT"] - 0.98) < 0.01 and abs(cal.factor["Q_N_PB"] - 1.02) < 0.01
+        assert abs(factor[name] - f) < 3 * calibration.SD_INFLATION * sd[name], name
+    assert abs(factor["Q_N_AT"] - 0.98) < 0.01 and abs(factor["Q_N_PB"] - 1.02) < 0.01
 
 
 def test_apply_writes_the_factors_and_the_carried_priors():
@@ -56,7 +57,8 @@ def test_apply_writes_the_factors_and_the_carried_priors():
     cfg = preset("shipped")
     p = load_plant().vector()[None]
     inp = FilterInput(DT, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), POS_X, p)
-    cal = calibration.Calibration(factor={"Q_N_PB": 1.02, "B_eff": 0.95}, sd={"Q_N_PB": 0.004, "B_eff": 0.0001})
+    cal = calibration.Calibration(factor={"Q_N_PB": np.array([1.02]), "B_eff": np.array([0.95])},
+                                  sd={"Q_N_PB": np.array([0.004]), "B_eff": np.array([0.0001])})
     inp2, cfg2 = calibration.apply(inp, cfg, cal)
     assert inp2.params[0, P.Q_N_PB] == pytest.approx(1.02 * p[0, P.Q_N_PB])
     assert inp2.params[0, P.B_eff] == pytest.approx(0.95 * p[0, P.B_eff])
@@ -98,3 +100,18 @@ def test_reference_catches_a_small_leak_the_plant_file_hides(tmp_path, capsys):
     assert abs(cal["Q_N_PB"]["factor"] - 1.02) < 0.01 and abs(cal["Q_N_AT"]["factor"] - 0.98) < 0.01
     assert main(["fdi", "replay", str(rec), "--reference", str(tmp_path / "none.csv"), "--out", str(tmp_path / "x")]) == 2
     assert "none.csv" in capsys.readouterr().err
+
+
+def test_tune_reference_runs_are_healthy_and_leave_the_batch_alone():
+    """The reference batch of `fdi tune --reference`: healthy, another input, the filter given
+    the plant file; drawing it does not move the batch's own draws (paired seeds)."""
+    from fdi.montecarlo import make_batch, make_reference_batch
+
+    plant = load_plant()
+    a = make_batch(plant, 6, 4321, fault="K_extA", size=0.5)
+    ref = make_reference_batch(plant, a.truth["params"], 4321)
+    b = make_batch(plant, 6, 4321, fault="K_extA", size=0.5)
+    assert np.array_equal(a.inp.pA, b.inp.pA) and np.array_equal(a.truth["params"], b.truth["params"])
+    assert np.array_equal(ref.inp.params, np.tile(plant.vector(), (6, 1)))
+    assert not np.allclose(ref.inp.u, a.inp.u)
+    assert not any(k.startswith("K_") or k == "offset" for k in ref.truth)
