@@ -60,14 +60,15 @@ def apply(inp: FilterInput, cfg: FilterConfig, cal: Calibration) -> tuple[Filter
     """``inp`` with each calibrated parameter's nominal value multiplied by its run's factor,
     and ``cfg`` with that calibration state's prior std set to SD_INFLATION times the
     reference's (the median over the runs: one configuration serves the batch), at least
-    MIN_PRIOR_SD; its random walk is unchanged."""
+    MIN_PRIOR_SD and at most the prior ``cfg`` had; its random walk is unchanged."""
     params = inp.params.copy()
     for name, f in cal.factor.items():
         params[:, P[name]] *= f
     over = {name: (p0, q) for name, p0, q in cfg.calib_noise}
     for name, sd in cal.sd.items():
-        q = over.get(name, (cfg.p0_calib, cfg.q_calib))[1]
-        over[name] = (max(SD_INFLATION * float(np.median(sd)), MIN_PRIOR_SD), q)
+        p0, q = over.get(name, (cfg.p0_calib, cfg.q_calib))
+        # a reference that taught little (stalled, short) leaves the prior as it was
+        over[name] = (min(max(SD_INFLATION * float(np.median(sd)), MIN_PRIOR_SD), p0), q)
     noise = tuple((name, p0, q) for name, (p0, q) in over.items())
     return replace(inp, params=params), cfg.with_(calib_noise=noise)
 

@@ -69,6 +69,10 @@ def test_apply_writes_the_factors_and_the_carried_priors():
     assert noise["Q_N_PB"] == (pytest.approx(calibration.SD_INFLATION * 0.004), cfg.q_calib)
     assert noise["B_eff"] == (calibration.MIN_PRIOR_SD, old["B_eff"][1])  # floored; its own walk kept
     assert noise["m_L"] == old["m_L"]  # the load is not carried over
+    # a reference that taught nothing (posterior = prior) leaves the prior as it was
+    _, cfg3 = calibration.apply(inp, cfg, calibration.Calibration(factor={"Q_N_PA": np.array([1.0])},
+                                                                  sd={"Q_N_PA": np.array([cfg.p0_calib])}))
+    assert {n: p0 for n, p0, _ in cfg3.calib_noise}["Q_N_PA"] == cfg.p0_calib
 
 
 def _isolated_within(d: dict, name: str, t_end: float) -> bool:
