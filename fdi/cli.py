@@ -21,8 +21,8 @@ def add_commands(subparsers) -> None:
                    "learnt there replace the plant file's (recommended; the change test keeps this recording's "
                    "own baseline)")
     r.add_argument("--baseline", help="healthy recording of the same machine: its estimates are the baseline the "
-                   "change test compares against, for a fault present from the start (default: the first second "
-                   "of this recording; costs false alarms when the loads differ, docs/fdi.md)")
+                   "change test compares against, for a fault present from the start (default: this recording's own "
+                   "estimates over its first unpinned second; costs false alarms when the loads differ, docs/fdi.md)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
     r.add_argument("--drop-out-of-range", action="store_true",
                    help="treat pressure samples outside 0-25 MPa as missing instead of refusing the file")

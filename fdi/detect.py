@@ -87,7 +87,9 @@ class Thresholds:
     drift: float = 1.0  #: sigma; CUSUM reference value: only r beyond this accumulates
     h: dict = field(default_factory=lambda: {k: 1.0 for k in HYPOTHESES})  #: sigma s
     warmup_s: float = 0.5  #: no alarms while the filter converges
-    baseline_s: float = 1.0  #: healthy baseline = mean estimate over [warmup, warmup + baseline_s]
+    #: healthy baseline = mean estimate over [warmup, warmup + baseline_s], its unpinned samples
+    #: (later ones if the run starts pinned: :func:`baseline_window`)
+    baseline_s: float = 1.0
     #: healthy spread of (estimate - baseline) from model uncertainty, per parameter and regime (SI)
     sigma: dict = field(default_factory=lambda: {
         "K_int": [1.0e-9] * 5, "K_extA": [5e-10] * 5, "K_extB": [6e-10] * 5, "offset": [5e-3] * 5})
@@ -99,7 +101,8 @@ class Thresholds:
     transient_s: float = 0.3
     #: Pa; chamber pressures within this of the supply and of the tank pressure are "pinned"
     #: (:func:`pinned`: stalled or on an end stop, no flow): the change tests of the parameters
-    #: that are then unobservable are held. 15 sensor noise std (20 kPa), 3 % of the supply.
+    #: that are then unobservable are held (the CUSUM detector; the optional GLR one holds
+    #: nothing). 15 sensor noise std (20 kPa), 3 % of the supply.
     pin_margin_Pa: float = 0.3e6
     nis_limit: float = 9.0  #: weighted NIS (3 channels; mean 3) above this is a model-fit alarm
     nis_hold_s: float = 0.5  #: ... when held this long
@@ -194,12 +197,15 @@ def pinned(out: FilterOutput, th: "Thresholds") -> np.ndarray:
     ``th.pin_margin_Pa`` of the supply and B within it of the tank pressure, [..., 1] the other
     way round: the cylinder is stalled against its load or held on an end stop with the valve
     open, and no oil flows but the leaks. Pressures are the filter's posterior means (finite
-    through NaN gaps); the supply is the measured p_S when the recording has it, else the
-    plant's. False everywhere when the output carries no measured data (``out.inp``)."""
+    through NaN gaps); the supply is the measured p_S when the recording has it (the plant's in
+    its gaps), else the plant's. False everywhere when the output carries no measured data
+    (``out.inp``)."""
     B, T = out.mean.shape[:2]
     if out.inp is None:
         return np.zeros((B, T, 2), dtype=bool)
-    p_S = out.inp.params[:, P.p_S][:, None] if out.inp.pS is None else np.nan_to_num(out.inp.pS, nan=np.inf)
+    p_S = out.inp.params[:, P.p_S][:, None]
+    if out.inp.pS is not None:  # measured; in its gaps the plant's, as the filter does
+        p_S = np.where(np.isnan(out.inp.pS), p_S, out.inp.pS)
     p_T = out.inp.params[:, P.p_T][:, None]
     hi = out.mean[:, :, :2] >= (p_S - th.pin_margin_Pa)[..., None]
     lo = out.mean[:, :, :2] <= (p_T + th.pin_margin_Pa)[..., None]
@@ -238,7 +244,8 @@ def baseline_window(t: np.ndarray, hidden: np.ndarray, th: "Thresholds") -> tupl
         n_base = max(1, int(round(th.baseline_s / dt)))
         count = np.cumsum(after & seen[slide], axis=1)
         w[slide] = after & seen[slide] & (count <= n_base)
-        ready[slide] = count >= n_base
+        full = count >= n_base  # from the last baseline sample on; armed from the sample after it
+        ready[slide] = np.concatenate([np.zeros((len(full), 1), dtype=bool), full[:, :-1]], axis=1)
     return w, ready
 
 
@@ -445,7 +452,8 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
         isolation_time_s=iso_time, likelihood=lik,
         thresholds={"drift_sigma": th.drift, "h_sigma_s": dict(th.h), "warmup_s": th.warmup_s,
                     "baseline": "reference recording" if baseline is not None else
-                    f"own estimates over [{th.warmup_s:g}, {th.warmup_s + th.baseline_s:g}] s (unpinned samples)",
+                    f"own estimates over [{th.warmup_s:g}, {th.warmup_s + th.baseline_s:g}] s (unpinned samples; "
+                    f"the first {th.baseline_s:g} s of them if the record starts pinned)",
                     "false_alarm_level": th.false_alarm_level, "run_length_s": th.run_length_s,
                     "isolation": th.isolation, "source": th.source},
         note=note,

@@ -83,4 +83,5 @@ def make_reference_batch(plant: Plant, machines: np.ndarray, seed: int, *, durat
     truth = np.array(machines, dtype=float, copy=True)
     truth[:, P.m_L] = rng.uniform(*LOAD_RANGE, n)
     t = np.arange(int(round(duration / dt)) + 1) * dt
-    return simulate_runs(truth, draw_inputs(n, t, rng), dt, nominal=np.tile(plant.vector(), (n, 1)), seed=seed + 7)
+    u = draw_inputs(n, t, rng)
+    return simulate_runs(truth, u, dt, nominal=np.tile(plant.vector(), (n, 1)), seed=int(rng.integers(1 << 31)))

@@ -16,7 +16,7 @@ from sam import P, Plant, Recording, UserError, simulate_batch
 from sam.geometry import piston_position
 
 from . import calibration
-from .detect import HYPOTHESES, Diagnosis, Thresholds, diagnose, residuals, statistics
+from .detect import HYPOTHESES, PARAMS, Diagnosis, Thresholds, diagnose, held, residuals, statistics
 from .ukf import (
     FAULT_STATES, POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
     preset, run_filter,
@@ -110,20 +110,35 @@ def learn_reference(ref: Recording, plant: Plant, cfg: FilterConfig, *,
                     drop_out_of_range: bool = False) -> calibration.Calibration:
     """The machine constants (notch flows, bulk modulus) that ``cfg``'s calibration states
     learn on a healthy reference recording of the same machine (:mod:`fdi.calibration`)."""
-    inp, _ = filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)
-    return calibration.learn(run_filter(inp, cfg), cfg)
+    name = str(ref.source or "reference recording")
+    cal = calibration.learn(run_filter(filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)[0],
+                                       cfg), cfg)
+    if not cal.factor:
+        raise UserError(f"{name}: --reference: the filter of these thresholds calibrates none of "
+                        f"{', '.join(calibration.MACHINE_STATES)}, so a reference has nothing to teach it")
+    return cal
 
 
-def reference_baseline(ref: Recording, plant: Plant, cfg: FilterConfig = FilterConfig(),
+def reference_baseline(ref: Recording, plant: Plant, th: Thresholds, cfg: FilterConfig,
                        cal: calibration.Calibration | None = None, *,
                        drop_out_of_range: bool = False) -> np.ndarray:
     """(1, 4) healthy baseline of the fault estimates from a reference recording of the same
     machine: the mean of each estimate over the second half of the reference, filtered with the
-    calibration ``cal`` if the replay uses one."""
+    calibration ``cal`` if the replay uses one, over the samples at which pinned pressures do not
+    hide it (:func:`fdi.detect.held`; the whole reference if its second half hides it)."""
+    name = str(ref.source or "reference recording")
     inp, _ = filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)
     out = run_filter(*(calibration.apply(inp, cfg, cal) if cal is not None else (inp, cfg)))
-    half = out.mean.shape[1] // 2
-    return np.array([[out.mean[0, half:, j].mean() for j in FAULT_STATES]])
+    seen = ~held(out, th)[0]  # (4, T)
+    second = np.arange(out.mean.shape[1]) >= out.mean.shape[1] // 2
+    base = []
+    for i, (param, j) in enumerate(PARAMS.items()):
+        w = seen[i] & second if (seen[i] & second).any() else seen[i]
+        if not w.any():
+            raise UserError(f"{name}: --baseline: the pressures are pinned to supply and tank throughout, "
+                            f"so {param} is never observable there; record a reference in motion")
+        base.append(out.mean[0, w, j].mean())
+    return np.array([base])
 
 
 def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
@@ -146,7 +161,7 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
         cal = learn_reference(reference, plant, cfg, drop_out_of_range=drop_out_of_range)
         info["calibrated_from_reference"] = cal.to_json()
     if isinstance(baseline, Recording):
-        baseline = reference_baseline(baseline, plant, cfg, cal, drop_out_of_range=drop_out_of_range)
+        baseline = reference_baseline(baseline, plant, thresholds, cfg, cal, drop_out_of_range=drop_out_of_range)
     if cal is not None:
         inp, cfg = calibration.apply(inp, cfg, cal)
     out = run_filter(inp, cfg)

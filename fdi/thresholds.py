@@ -104,15 +104,15 @@ def _dev(out, th: Thresholds):
     return dev, sd, reg, hidden, ready
 
 
-def _regime_stat(dev, reg, hidden, after: float, how: str) -> np.ndarray:
+def _regime_stat(dev, reg, hidden, ready, after: float, how: str) -> np.ndarray:
     """(n, 4 params x 5 regimes): mean or RMS of dev per regime after time `after`, over the
-    samples the change test scores (not ``hidden``, (n, 4, T))."""
+    samples the change test scores (``ready`` and not ``hidden``, both (n, 4, T))."""
     n, npar, T = dev.shape
     k0 = int(round(after / DT))
     Y = np.zeros((n, npar, len(REGIMES)))
     for g in range(len(REGIMES)):
         for i in range(npar):
-            w = (reg[:, k0:] == g) & ~hidden[:, i, k0:]
+            w = (reg[:, k0:] == g) & ~hidden[:, i, k0:] & ready[:, i, k0:]
             cnt = np.maximum(w.sum(axis=1), 1)
             d = dev[:, i, k0:]
             Y[:, i, g] = (np.where(w, d, 0).sum(axis=1) / cnt if how == "mean"
@@ -136,8 +136,8 @@ def _leak_model(X: np.ndarray, th: Thresholds) -> np.ndarray:
     faults = {name: np.where(t[None, :] >= ONSET, X[:, [i]], 0.0)
               for i, name in enumerate(("K_int", "K_extA", "K_extB", "offset"))}
     out = _run_rows(params, X[:, 4], X[:, 5], faults, th.filter)
-    dev, _, reg, hidden, _ = _dev(out, th)
-    return _regime_stat(dev, reg, hidden, ONSET + 0.2, "mean")
+    dev, _, reg, hidden, ready = _dev(out, th)
+    return _regime_stat(dev, reg, hidden, ready, ONSET + 0.2, "mean")
 
 
 def _nuisance_params(X: np.ndarray) -> np.ndarray:
@@ -156,7 +156,7 @@ def _nuisance_params(X: np.ndarray) -> np.ndarray:
 def _nuisance_model(X: np.ndarray, th: Thresholds):
     out = _run_rows(_nuisance_params(X), X[:, -2], X[:, -1], filter_name=th.filter)
     dev, sd, reg, hidden, ready = _dev(out, th)
-    return (_regime_stat(dev, reg, hidden, th.warmup_s + th.baseline_s, "rms"),
+    return (_regime_stat(dev, reg, hidden, ready, th.warmup_s + th.baseline_s, "rms"),
             (dev, sd, reg, hidden, ready, _glr_maxima(out, th)))
 
 

@@ -37,7 +37,10 @@ FAULT_SIZES = {"K_int": (0.1, 0.25, 0.5, 1.0), "K_extA": (0.1, 0.25, 0.5, 1.0),
 DURATION, CHUNK, DT = 4.0, 25, 1e-3
 ONSET_MIN, ONSET_MAX = 1.5, 2.5  #: fault onset range [s]; + the 1 s scored ends by 3.5 s < DURATION
 ONSET = ONSET_MIN  #: the nominal onset of healthy runs (their windows are not scored)
-CHUNK_VERSION = "r"  #: chunk file tag: "r" = random onset, per-run k_onset saved
+#: chunk file tag: "r" = random onset, per-run k_onset saved (session 8); "s" = the same with the
+#: tests held where pinned pressures hide them and the session-9 thresholds (an older folder's
+#: chunks are not mixed in)
+CHUNK_VERSION = "s"
 LOAD_BINS = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))
 HYP = tuple(HYPOTHESES)
 
