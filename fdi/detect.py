@@ -249,13 +249,19 @@ def baseline_window(t: np.ndarray, hidden: np.ndarray, th: "Thresholds") -> tupl
     return w, ready
 
 
-def baseline_values(out: FilterOutput, th: "Thresholds", hidden: np.ndarray | None = None) -> np.ndarray:
-    """(B, 4) mean of each fault estimate over its baseline window (:func:`baseline_window`,
-    the samples of [warmup, warmup + baseline_s] at which it is not ``hidden``, (B, 4, T))."""
+def own_baseline(out: FilterOutput, th: "Thresholds", hidden: np.ndarray | None = None):
+    """The recording's own healthy baseline: (B, 4) mean of each fault estimate over its
+    baseline window (:func:`baseline_window`, the samples of [warmup, warmup + baseline_s] at
+    which it is not ``hidden``, (B, 4, T)), and the samples at which its test is armed (B, 4, T)."""
     hidden = held(out, th) if hidden is None else hidden
-    w, _ = baseline_window(out.t, hidden, th)
+    w, ready = baseline_window(out.t, hidden, th)
     est = np.stack([out.mean[:, :, j] for j in PARAMS.values()], axis=1)
-    return np.where(w, est, 0.0).sum(axis=2) / np.maximum(w.sum(axis=2), 1)
+    return np.where(w, est, 0.0).sum(axis=2) / np.maximum(w.sum(axis=2), 1), ready
+
+
+def baseline_values(out: FilterOutput, th: "Thresholds", hidden: np.ndarray | None = None) -> np.ndarray:
+    """(B, 4) the baseline of :func:`own_baseline`."""
+    return own_baseline(out, th, hidden)[0]
 
 
 def change_residuals(out: FilterOutput, th: "Thresholds", baseline: np.ndarray | None = None,
@@ -268,8 +274,7 @@ def change_residuals(out: FilterOutput, th: "Thresholds", baseline: np.ndarray |
     reg = regimes(u, dt, th.band_V, th.transient_s) if u is not None else np.full(out.mean.shape[:2], 2, np.int8)
     hidden = held(out, th)
     if baseline is None:
-        base = baseline_values(out, th, hidden)
-        _, ready = baseline_window(out.t, hidden, th)
+        base, ready = own_baseline(out, th, hidden)
     else:
         base = np.broadcast_to(np.atleast_2d(baseline), (out.mean.shape[0], 4))
         ready = np.broadcast_to(out.t >= th.warmup_s, hidden.shape)

@@ -111,8 +111,8 @@ def learn_reference(ref: Recording, plant: Plant, cfg: FilterConfig, *,
     """The machine constants (notch flows, bulk modulus) that ``cfg``'s calibration states
     learn on a healthy reference recording of the same machine (:mod:`fdi.calibration`)."""
     name = str(ref.source or "reference recording")
-    cal = calibration.learn(run_filter(filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)[0],
-                                       cfg), cfg)
+    inp, _ = filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)
+    cal = calibration.learn(run_filter(inp, cfg), cfg)
     if not cal.factor:
         raise UserError(f"{name}: --reference: the filter of these thresholds calibrates none of "
                         f"{', '.join(calibration.MACHINE_STATES)}, so a reference has nothing to teach it")

@@ -37,7 +37,7 @@ import numpy as np
 
 from sam import P, Plant
 
-from .detect import HYPOTHESES, PARAMS, REGIMES, Thresholds, baseline_values, baseline_window, held, regimes
+from .detect import HYPOTHESES, PARAMS, REGIMES, Thresholds, held, own_baseline, regimes
 from .synth import input_signal, simulate_runs
 from .ukf import preset, run_filter
 
@@ -94,13 +94,12 @@ _NOMINAL = None
 def _dev(out, th: Thresholds):
     """Changes of the fault estimates from their baselines (n, 4, T), their filter std (n, 4, T),
     the regimes (n, T), the held samples and the armed samples (n, 4, T; fdi.detect.held and
-    baseline_window), as fdi.detect scores them."""
+    own_baseline), as fdi.detect scores them."""
     hidden = held(out, th)
-    base = baseline_values(out, th, hidden)
+    base, ready = own_baseline(out, th, hidden)
     dev = np.stack([out.mean[:, :, j] - base[:, i:i + 1] for i, j in enumerate(PARAMS.values())], axis=1)
     sd = np.stack([out.std[:, :, j] for j in PARAMS.values()], axis=1)
     reg = regimes(out.u, DT, th.band_V, th.transient_s)
-    _, ready = baseline_window(out.t, hidden, th)
     return dev, sd, reg, hidden, ready
 
 
