@@ -50,7 +50,7 @@ def main() -> None:
           f"-> 1000 runs ~ {tb * 10:.0f} s on one core")
 
     from fdi.ukf import PRESETS
-    leg = PRESETS["legacy"]  # the default of sessions 1-5 (12 states), docs/fdi.md
+    leg = PRESETS["legacy"]  # the default of sessions 1-5 (12 states), docs/fdi-history.md
     run_filter(runs.inp, leg)
     bl = min(_timed(lambda: run_filter(runs.inp, leg)) for _ in range(3))
     tl = _timed(lambda: run_filter(mc.inp, leg))

@@ -7,7 +7,7 @@ before any fault can hide in them: :func:`learn` reads them at the reference's l
 :func:`apply` writes them into the nominal plant of another recording and narrows the priors
 to what the reference left uncertain. A 0.25 L/min leak is about 1 % of the valve's flow, so a
 notch flow known to +-2 % can absorb it while the cylinder moves; known to +-0.5 % it cannot
-(docs/fdi.md, "Session 9").
+(docs/fdi-history.md, "Session 9").
 """
 
 from __future__ import annotations

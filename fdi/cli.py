@@ -64,6 +64,10 @@ def add_commands(subparsers) -> None:
     t.add_argument("--reference", action="store_true",
                    help="calibrate every Monte Carlo machine on a healthy reference recording of its own first "
                    "(as `fdi replay --reference` does)")
+    t.add_argument("--bound", action="store_true",
+                   help="also measure what the data carry: the likelihood evidence of each fault at its TRUE "
+                   "onset (fdi/bound.py), to tell misses no detector could avoid from misses of ours; "
+                   "about three times the work of the tune")
     t.add_argument("--out", required=True, help="output folder (re-run the same command to resume)")
     t.set_defaults(func=_tune)
 
@@ -155,7 +159,8 @@ def _tune(args) -> int:
     if args.workers < 1:
         raise UserError(f"--workers: must be >= 1, got {args.workers}")
     m = run_tune(_plant(args), Path(args.out), n_runs=args.runs, workers=args.workers, scheduler=args.scheduler,
-                 thresholds=_load_thresholds(args.thresholds), reference=args.reference)
+                 thresholds=_load_thresholds(args.thresholds), reference=args.reference,
+                 bound=args.bound)
     print(Path(args.out, "metrics.md").read_text())
     tm = m["timing"]
     print(f"{tm['runs_computed']} runs in {tm['wall_s']:.1f} s with {tm['workers']} worker(s) "

@@ -18,7 +18,7 @@ This detector uses that directly, causally and at bounded cost:
   g(k) > h_glr. The onset estimate for the isolation stage is the alarming window's start
   (the last zero of g before the alarm, as for a CUSUM).
 
-Measured limitation (docs/fdi.md, session 7): a fault that starts before a window's start is
+Measured limitation (docs/fdi-history.md, session 7): a fault that starts before a window's start is
 partly absorbed by the seed (the detection filter follows it), so the detector mostly sees a
 change inside the window it starts in. The tune's onset (1.5 s) coincides with the first window's
 start, its best case; with the first window 0.25-0.5 s after the onset (``Thresholds.glr_start_s``)

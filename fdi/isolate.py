@@ -14,7 +14,7 @@ at sample k_a:
    against a fault state. (Measured: seeding
    the bank from the *detection* filter's own state at k0 holds its pre-onset offset error,
    +0.4 % on the nominal plant, in every leak hypothesis, and a 1 L/min K_int is taken for
-   offset- by thousands of nats; docs/fdi.md, "Session 6".)
+   offset- by thousands of nats; docs/fdi-history.md, "Session 6".)
 3. **bank**: one filter per hypothesis H of :data:`BANK`, started at k0 from the reference's
    mean and variances, the reference's calibration values written into the parameter
    vector, in which ONLY the parameter of H is free (a constant with the prior
@@ -73,7 +73,7 @@ from .ukf import (
     FilterOutput, param_layout, run_filter, state_scale,
 )
 
-#: The filter whose calibration states learn the nuisance before the onset (docs/fdi.md,
+#: The filter whose calibration states learn the nuisance before the onset (docs/fdi-history.md,
 #: session 4: load mass, B_eff and the four notch flows); its fault states are held.
 REFERENCE = PRESETS["calibrated"]
 #: Hypotheses of the bank: name -> the state left free (None: the healthy hypothesis).
@@ -469,20 +469,36 @@ def run_pairs(out: FilterOutput, ref: FilterOutput, first: BankResult, rows: np.
         return _run_hypotheses(out.inp, bank_config(det), rows, ks, np.maximum(k1, ks + 1), params, z0,
                                var, [MULTI] * len(rows), False)
     cfg = pair_config(det)
-    nc = len(det.calibrate)
-    sc = state_scale(cfg)
-    z0 = np.zeros((len(rows), N_AUG + nc))
-    var = np.zeros((len(rows), N_AUG + nc))
+    # the reference's calibration at the bank's start, as in the bank
+    z0, var = calibrated_seed(ref, np.arange(len(rows)), first.k0)
     for i, h in enumerate(hs):
         z0[i, :N_AUG] = first.z_last[i, h]
         var[i, :N_AUG] = first.var_last[i, h]
-        kr = int(first.k0[i])  # the reference's calibration at the bank's start, as in the bank
-        z0[i, N_AUG:] = ref.mean[i, kr, N_AUG:N_AUG + nc] / sc[N_AUG:]
-        var[i, N_AUG:] = (ref.std[i, kr, N_AUG:N_AUG + nc] / sc[N_AUG:]) ** 2
     z0[:, list(FAULT_IDX)] = first.z0[:, list(FAULT_IDX)]
     params = out.inp.params[rows]  # the calibration is a state here
     return _run_hypotheses(out.inp, cfg, rows, ks, np.maximum(k1, ks + 1), params, z0, var,
                            [MULTI] * len(rows), False)
+
+
+def calibrated_seed(ref: FilterOutput, ref_rows: np.ndarray, k: np.ndarray) -> tuple:
+    """Start of :func:`pair_config` filters from row ref_rows[i] of the reference ``ref`` at
+    sample k[i]: scaled means and diagonal variances (n, N_AUG + its calibration states)."""
+    nc = len(ref.config.calibrate)
+    sc = state_scale(pair_config(ref.config))
+    z0 = np.stack([ref.mean[r, int(ki), :N_AUG + nc] for r, ki in zip(ref_rows, k)]) / sc
+    var = (np.stack([ref.std[r, int(ki), :N_AUG + nc] for r, ki in zip(ref_rows, k)]) / sc) ** 2
+    return z0, var
+
+
+def run_bank_calibrated(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndarray,
+                        k1: np.ndarray, hypotheses: tuple = tuple(BANK)) -> BankResult:
+    """The bank of :func:`run_bank`, but with the reference's calibration as uncertain constant
+    states (:func:`pair_config`) instead of values written into the parameter vector: run i
+    over [k0[i], k1[i]), seeded from row i of ``ref`` at k0[i]. ONE run_filter call."""
+    rows = np.asarray(rows, dtype=np.int64)
+    z0, var = calibrated_seed(ref, np.arange(len(rows)), k0)
+    return _run_hypotheses(out.inp, pair_config(ref.config), rows, np.asarray(k0), np.asarray(k1),
+                           out.inp.params[rows], z0, var, [tuple(hypotheses)] * len(rows), False)
 
 
 def pair_config(detect: FilterConfig = REFERENCE) -> FilterConfig:

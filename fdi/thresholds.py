@@ -55,7 +55,7 @@ FA_LEVEL = 0.01  #: stated false-alarm level per 4 s healthy run
 #: Base sample size of the nuisance GSA. Its healthy runs also set h, a (1 - 0.002) quantile of
 #: their CUSUM maxima, and a Saltelli design has only 2N distinct experiments (input signals)
 #: among its N (k + 2) runs. N = 32 (64 experiments) gave offset+ h = 0.20 sigma s once pinned
-#: samples were held, and 2.2 % false alarms held out; N = 128: 1.24 sigma s, 0.4 % (docs/fdi.md,
+#: samples were held, and 2.2 % false alarms held out; N = 128: 1.24 sigma s, 0.4 % (docs/fdi-history.md,
 #: "Session 9").
 N_NUISANCE = 128
 #: narrowed nuisance ranges (relative half-widths) of Table 1's parameters

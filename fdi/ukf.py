@@ -23,7 +23,7 @@ Robustness (see docs/fdi.md):
   enter the model, and the posterior mean is projected onto K >= 0 (options:
   ``constraint="project_joint"`` moves the correlated states along with the
   projected leak, ``"truncate"`` truncates the Gaussian marginal at 0, mean and
-  covariance; measured in docs/fdi.md, off by default);
+  covariance; measured in docs/fdi-history.md, off by default);
 * P is symmetrised after every update; a failed Cholesky factorisation is
   retried with growing diagonal jitter, and as a last resort P is reset;
 * divergence: an exponentially weighted NIS above a chi-square bound resets the
@@ -90,7 +90,7 @@ LOG_2PI = math.log(2.0 * math.pi)  #: constant of the Gaussian log-density
 
 @dataclass(frozen=True)
 class FilterConfig:
-    # Defaults = the shipped (tested) filter. Measured, NOT shipped (docs/fdi.md, "Diagnosis"
+    # Defaults = the shipped (tested) filter. Measured, NOT shipped (docs/fdi-history.md, "Diagnosis"
     # and "Constrained update"): (1) calibrate=("m_L",), clip_leaks=False,
     # project_internal=False, theta_noise_floor=1e-4, leak/offset q x2 (fails 4 fdi tests);
     # (2) the same with constraint="truncate" (ratchets upward: worse); (3) calibrate=("m_L",),
@@ -100,7 +100,7 @@ class FilterConfig:
     # alarms) but fails 2 fdi tests (sizing, offset- next to a small K_int). Session 5: slower
     # calibration walks, smaller Q_N priors, a hard or soft (``freeze_sd_factor``) freeze of the
     # Q_N states and a faster K_int walk (PRESETS "calibrated_*"): each fixes at most one of the
-    # two tests (docs/fdi.md, "Session 5"). Session 6: the defaults ARE (4); isolation and
+    # two tests (docs/fdi-history.md, "Session 5"). Session 6: the defaults ARE (4); isolation and
     # sizing by the likelihood bank (fdi.isolate) fixed both tests. The session 1-5 defaults
     # are PRESETS["legacy"]. (discrepancy.unknown_input spells out its own settings.)
     """Tuning of the filter. Process noise is given as a spectral density
@@ -129,7 +129,7 @@ class FilterConfig:
     theta_pulse: float = THETA_PULSE  #: rad, encoder quantum: std = pulse / sqrt(12)
     #: rad, added in quadrature: the quantisation error is NOT white (constant while the
     #: arm is slow or held), so the q^2/12 of an independent error overstates the position
-    #: information at 1 kHz; 1e-4 rad (0.8 pulse) measured best (docs/fdi.md, diagnosis;
+    #: information at 1 kHz; 1e-4 rad (0.8 pulse) measured best (docs/fdi-history.md, diagnosis;
     #: 2e-5 until session 5, PRESETS["legacy"])
     theta_noise_floor: float = 1e-4
     #: calibration states: parameters whose RELATIVE error is estimated along with the
@@ -137,7 +137,7 @@ class FilterConfig:
     #: row), e.g. ("Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT"): the flow coefficient of each
     #: valve notch, the nuisance the GSA ranks first. Default since session 6: the load mass,
     #: B_eff and the four notch flows (the session-4 "calibrated" filter: held-out false alarms
-    #: 0.9 % against 3.5 % without them; docs/fdi.md). Off until session 5 (PRESETS["legacy"]).
+    #: 0.9 % against 3.5 % without them; docs/fdi-history.md). Off until session 5 (PRESETS["legacy"]).
     calibrate: tuple = ("m_L", "B_eff", "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT")
     p0_calib: float = 0.02  #: initial std of each calibration state (relative)
     q_calib: float = 0.002  #: its process-noise std per sqrt(s) (relative)
@@ -164,7 +164,7 @@ class FilterConfig:
     #: clip leak sigma points at 0 inside the model (the K >= 0 prior; without it a
     #: 1 L/min K_extA leaves 0.2 L/min on K_extB). Combined with projecting the filter's
     #: own mean (``project_internal``, still the default) it drifts in hold phases
-    #: (docs/fdi.md, diagnosis table); see ``constraint`` for the alternatives measured.
+    #: (docs/fdi-history.md, diagnosis table); see ``constraint`` for the alternatives measured.
     clip_leaks: bool = True
     #: report the posterior mean projected onto K >= 0 (the filter itself keeps the
     #: unconstrained Gaussian posterior unless ``project_internal``)
@@ -172,13 +172,13 @@ class FilterConfig:
     project_internal: bool = True
     #: how the filter's own posterior is kept on K >= 0 (when ``project_mean`` and
     #: ``project_internal``): "project" = set a negative leak mean to 0, nothing else
-    #: (the shipped default; drifts in hold phases with clipped sigma points);
+    #: (the default until session 5; drifts in hold phases with clipped sigma points);
     #: "project_joint" = a negative leak mean is set to 0 and the other states move along
     #: their regression on it (z -= P[:, j] z_j / P_jj; covariance untouched: the
     #: minimum-P^-1-distance projection); "truncate" = truncate the Gaussian marginal of each
     #: leak at 0 and condition the joint on it (mean AND covariance, density-function
     #: truncation, Simon & Simon 2010), leak by leak. With the truth ON the bound (healthy,
-    #: K = 0) "truncate" ratchets the estimates upward (docs/fdi.md).
+    #: K = 0) "truncate" ratchets the estimates upward (docs/fdi-history.md).
     constraint: str = "project_joint"  #: "project" until session 5 (PRESETS["legacy"])
     #: with "truncate": also shrink the covariance (False: shift the mean only)
     truncate_cov: bool = True
@@ -978,7 +978,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
 
 #: Named filter configurations. A thresholds file names the one it was derived for
 #: (``Thresholds.filter``); replay and tune use that one. "shipped" = the defaults.
-#: "calibrated" (session 4, NOT the default: it fails 2 fdi tests, docs/fdi.md
+#: "calibrated" (session 4, NOT the default: it fails 2 fdi tests, docs/fdi-history.md
 #: "Constrained update and calibration states"): clipped sigma points with the joint
 #: projection of a negative leak mean, plus relative calibration states for the load mass,
 #: B_eff and the four notch flows Q_N, and the 1e-4 rad encoder floor.
@@ -993,7 +993,7 @@ PRESETS = {
     "legacy": FilterConfig(constraint="project", theta_noise_floor=2e-5, calibrate=(),
                            calib_noise=(("m_L", 0.25, 0.05),)),
 }
-#: Session 5 variants of "calibrated" (options; measured in docs/fdi.md, "Session 5"; none
+#: Session 5 variants of "calibrated" (options; measured in docs/fdi-history.md, "Session 5"; none
 #: passes every fdi test, so none is the default and none ships a thresholds file; derive
 #: one with ``samfdi fdi thresholds --filter NAME``):
 #: "calibrated_qn_frozen": the four notch-flow states learnt over [0, 1.5] s, then frozen

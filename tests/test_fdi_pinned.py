@@ -1,5 +1,5 @@
 """Pinned pressures (stall, end stop): which change tests are held, and the baseline that
-skips them (fdi.detect.pinned, held, baseline_window; docs/fdi.md, "Session 9")."""
+skips them (fdi.detect.pinned, held, baseline_window; docs/fdi-history.md, "Session 9")."""
 
 from __future__ import annotations
 
