@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sam.errors import UserError
+from sam.errors import UserError, output_folder
 
 
 def add_commands(subparsers) -> None:
@@ -31,14 +31,16 @@ def add_commands(subparsers) -> None:
     s = sub.add_parser("signatures", help="fault signature tables (CSV, Markdown, heat map)")
     s.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
     s.add_argument("--out", required=True, help="output folder")
-    s.add_argument("--force", action="store_true")
+    s.add_argument("--force", action="store_true", help="overwrite existing output files")
     s.set_defaults(func=_signatures)
 
     g = sub.add_parser("thresholds", help="thresholds from the leakage and nuisance Sobol' studies (prints them)")
     g.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
-    g.add_argument("--n-leak", type=int, default=16, help="base sample size of the leakage GSA (power of 2)")
+    g.add_argument("--n-leak", type=int, default=16, help="base sample size of the leakage GSA (a power of 2 keeps the Sobol' "
+                   "sequence balanced; other sizes work)")
     g.add_argument("--n-nuisance", type=int, default=128,
-                   help="base sample size of the nuisance GSA (power of 2; its 2N distinct experiments set h)")
+                   help="base sample size of the nuisance GSA (a power of 2 recommended; its 2N distinct "
+                   "experiments set h)")
     g.add_argument("--workers", type=int, default=1, help="local worker processes")
     g.add_argument("--filter", default="shipped",
                    help="filter configuration to derive the thresholds for (a name in fdi.ukf.PRESETS: shipped, calibrated, "
@@ -53,13 +55,16 @@ def add_commands(subparsers) -> None:
                         "itself) or specific (the fault explains >= half of the residual's variance: for "
                         "isolation = \"signature\", which names the first alarm's fault)")
     g.add_argument("--out", required=True, help="output folder: thresholds.toml, thresholds.md, thresholds_gsa.json")
+    g.add_argument("--force", action="store_true", help="overwrite existing output files")
     g.set_defaults(func=_thresholds)
 
     t = sub.add_parser("tune", help="Monte Carlo detection metrics on held-out runs (resumable)")
     t.add_argument("--thresholds", help="thresholds.toml (default: the shipped one)")
     t.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
-    t.add_argument("--runs", type=int, default=100, help="healthy runs (fault runs: runs/5 per type and size)")
-    t.add_argument("--workers", type=int, default=1, help="local worker processes (dask)")
+    t.add_argument("--runs", type=int, default=100, help="healthy runs N (default 100); fault runs: max(5, N // 5) "
+                   "per fault type and size")
+    t.add_argument("--workers", type=int, default=1,
+                   help="local worker processes (a process pool; --scheduler runs on a dask cluster instead)")
     t.add_argument("--scheduler", help="dask scheduler address, e.g. tcp://host:8786")
     t.add_argument("--reference", action="store_true",
                    help="calibrate every Monte Carlo machine on a healthy reference recording of its own first "
@@ -68,7 +73,11 @@ def add_commands(subparsers) -> None:
                    help="also measure what the data carry: the likelihood evidence of each fault at its TRUE "
                    "onset (fdi/bound.py), to tell misses no detector could avoid from misses of ours; "
                    "about three times the work of the tune")
-    t.add_argument("--out", required=True, help="output folder (re-run the same command to resume)")
+    t.add_argument("--out", required=True, help="output folder (re-run the same command to resume; a folder made "
+                   "with other --runs, --thresholds or --plant is refused)")
+    t.add_argument("--force", action="store_true",
+                   help="overwrite metrics.md, metrics.json, thresholds_used.json, roc.png in a folder that is not "
+                   "a tune folder")
     t.set_defaults(func=_tune)
 
 
@@ -92,19 +101,23 @@ def _load_thresholds(path):
 
 
 def _thresholds(args) -> int:
-    from .thresholds import compute_thresholds, describe, write_thresholds
+    from .thresholds import OUTPUT_FILES, compute_thresholds, describe, write_thresholds
 
+    if args.workers < 1:
+        raise UserError(f"--workers: must be >= 1, got {args.workers}")
     for name, n in (("--n-leak", args.n_leak), ("--n-nuisance", args.n_nuisance)):
         if n < 4:
             raise UserError(f"{name}: need at least 4, got {n}")
     from .ukf import PRESETS
     if args.filter not in PRESETS:
         raise UserError(f"--filter: unknown filter {args.filter!r}; known: {', '.join(PRESETS)}")
-    th, report = compute_thresholds(_plant(args), N_leak=args.n_leak, N_nuisance=args.n_nuisance,
+    plant = _plant(args)
+    out = output_folder(args.out, OUTPUT_FILES, args.force)
+    th, report = compute_thresholds(plant, N_leak=args.n_leak, N_nuisance=args.n_nuisance,
                                     workers=args.workers, filter=args.filter, detector=args.detector,
                                     vote_rule=args.votes, progress=True)
     print(describe(th))
-    for p in write_thresholds(th, report, Path(args.out)):
+    for p in write_thresholds(th, report, out):
         print(f"wrote {p}")
     return 0
 
@@ -121,7 +134,8 @@ def _replay(args) -> int:
     base = read_recording(args.baseline) if args.baseline else None
     ref = read_recording(args.reference) if args.reference else None
     diag = replay_recording(rec, plant, args.out, force=args.force, thresholds=th,
-                            drop_out_of_range=args.drop_out_of_range, baseline=base, reference=ref)
+                            drop_out_of_range=args.drop_out_of_range, baseline=base, reference=ref,
+                            plant_name=args.plant or "the shipped plant (scenarios/plants/sam.toml)")
     line = f"{diag.status}"
     if diag.isolated:  # the bank may name another hypothesis than the one that alarmed first
         line += ": " + ", ".join(f"{h} {diag.size[h]['value']:.3g} {diag.size[h]['unit']}" if h in diag.size else h
@@ -134,6 +148,10 @@ def _replay(args) -> int:
             f"{k} x{v['factor']:.4f} (+-{100 * v['relative_sd']:.2f} %)" for k, v in cal.items()))
     if diag.filter_health.get("nan_samples"):
         print(f"predicted through {diag.filter_health['nan_samples']} sample(s) with missing measurements")
+    if diag.filter_health.get("u_gaps_held"):
+        print(f"held the input u through {diag.filter_health['u_gaps_held']} missing sample(s)")
+    if diag.filter_health.get("model_fit_warning"):
+        print(f"warning: {diag.filter_health['model_fit_warning']}")
     print(f"wrote {Path(args.out)}/estimates.csv, residuals.csv, diagnosis.json, replay.png")
     return 0
 
@@ -141,11 +159,9 @@ def _replay(args) -> int:
 def _signatures(args) -> int:
     from .signatures import signature_table, write_signatures
 
-    out = Path(args.out)
-    existing = [f for f in ("signatures.csv", "signatures.md", "signatures.png") if (out / f).exists()]
-    if existing and not args.force:
-        raise UserError(f"{out}: already holds {', '.join(existing)}; use --force to overwrite")
-    rows = signature_table(_plant(args))
+    plant = _plant(args)
+    out = output_folder(args.out, ("signatures.csv", "signatures.md", "signatures.png"), args.force)
+    rows = signature_table(plant)
     for p in write_signatures(rows, out):
         print(f"wrote {p}")
     return 0
@@ -160,10 +176,15 @@ def _tune(args) -> int:
         raise UserError(f"--workers: must be >= 1, got {args.workers}")
     m = run_tune(_plant(args), Path(args.out), n_runs=args.runs, workers=args.workers, scheduler=args.scheduler,
                  thresholds=_load_thresholds(args.thresholds), reference=args.reference,
-                 bound=args.bound)
+                 bound=args.bound, force=args.force)
     print(Path(args.out, "metrics.md").read_text())
     tm = m["timing"]
-    print(f"{tm['runs_computed']} runs in {tm['wall_s']:.1f} s with {tm['workers']} worker(s) "
-          f"({tm['s_per_1000_runs']:.0f} s per 1000 runs)")
+    if tm["runs_computed"] == 0:  # a re-run of a finished tune: say so rather than "0 runs in 0.0 s"
+        print(f"nothing to compute: all {tm['chunks']} chunks were already in {Path(args.out, 'chunks')}")
+    else:
+        print(f"{tm['runs_computed']} runs in {tm['wall_s']:.1f} s with {tm['workers']} worker(s) "
+              f"({tm['s_per_1000_runs']:.0f} s per 1000 runs)"
+              + (f"; {tm['chunks'] - tm['chunks_computed']} of {tm['chunks']} chunks resumed"
+                 if tm["chunks_computed"] < tm["chunks"] else ""))
     print(f"wrote {args.out}/metrics.md, metrics.json, thresholds_used.json, roc.png")
     return 0

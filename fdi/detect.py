@@ -451,6 +451,10 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
                     "(valve offset vs leakage); the estimates cannot tell them apart here")
         else:
             status, isolated = "several faults", names
+    warning = model_fit_warning(nis_time, health)
+    if warning and not (status == "fault, not isolable" and not names):  # that note says it already
+        health["model_fit_warning"] = warning
+        note = f"{note}; {warning}" if note else warning
     return Diagnosis(
         status=status, isolated=isolated, detection_time_s=(alarms[names[0]] if names else nis_time),
         alarms=alarms, size=size, confidence=conf, model_fit_alarm_s=nis_time, filter_health=health,
@@ -463,6 +467,21 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
                     "isolation": th.isolation, "source": th.source},
         note=note,
     )
+
+
+def model_fit_warning(nis_time: float | None, health: dict) -> str:
+    """A warning when the model stopped fitting the recording (an NIS alarm, or the filter had
+    to reset its covariance or state; none of the 41 shipped scenarios does either, on the
+    nominal plant): then a named fault may be a symptom of a plant-file mismatch. '' if not."""
+    resets = health["covariance_resets"] + health["state_resets"]
+    if nis_time is None and resets == 0:
+        return ""
+    why = [f"NIS alarm at t = {nis_time:.3f} s"] if nis_time is not None else []
+    if resets:
+        why.append(f"{health['covariance_resets']} covariance and {health['state_resets']} state resets")
+    return (f"the model does not fit this recording ({'; '.join(why)}): the diagnosis may reflect a plant "
+            "file that does not describe this machine rather than a fault; check the plant file "
+            "(`samfdi mismatch` locates what differs)")
 
 
 def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict, decision=None,

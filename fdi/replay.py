@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from sam import P, Plant, Recording, UserError, simulate_batch
-from sam.geometry import piston_position
+from sam.errors import output_folder
+from sam.geometry import joint_angle, piston_position
 
 from . import calibration
 from .detect import HYPOTHESES, PARAMS, Diagnosis, Thresholds, diagnose, held, residuals, statistics
@@ -25,7 +26,17 @@ from .ukf import (
 SENSOR_RANGE_PA = (0.0, 25e6)  #: pressure sensors of the SAM
 RANGE_MARGIN_PA = 0.5e6  #: noise around the range ends that is still accepted
 MAX_DT = 2e-3  #: s, the forward-Euler model step is the sampling step: stable up to here
+DT_TOLERANCE = 1e-9  #: relative: a 500 Hz clock whose mean step reads 2.000000001 ms is 2 ms
+#: Position readings may stray this far outside the plant's stroke (sensor offset and noise);
+#: further out the recording and the plant file describe different machines.
+#: s: the shortest stretch worth testing after the warm-up and the baseline: the bank decides
+#: no earlier than isolate.MIN_EVIDENCE_S = 0.6 s after its start, so less could say "healthy"
+#: of a fault that had no chance to show.
+MIN_TESTED_S = 0.5
+POSITION_MARGIN_M = 0.005
+THETA_MARGIN_RAD = 0.01
 OUTPUT_FILES = ("estimates.csv", "residuals.csv", "diagnosis.json", "replay.png")
+FIGURE_CLIP = 5.0  #: the replay figure shows statistic / threshold up to this
 
 
 def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = False) -> tuple[FilterInput, dict]:
@@ -34,7 +45,7 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
     if rec.n < 10:
         raise UserError(f"{name}: only {rec.n} samples; the filter needs at least 10")
     dt = rec.dt
-    if not (dt <= MAX_DT):
+    if not (dt <= MAX_DT * (1.0 + DT_TOLERANCE)):
         raise UserError(f"{name}: 't': sampling step {dt * 1e3:.3g} ms is above {MAX_DT * 1e3:g} ms; the filter "
                         "steps the model at the sampling step and forward Euler is not stable there: "
                         "record at 1 kHz or faster")
@@ -67,13 +78,34 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
         pos, kind = sig["x"], POS_X
     else:
         pos, kind = sig["theta"], POS_THETA
+    _check_position(name, rec.t, "x" if kind == POS_X else "theta", pos, plant)
     params = plant.vector()[None, :]
     inp = FilterInput(dt=dt, u=u[None, :], pA=sig["pA"][None, :], pB=sig["pB"][None, :], pos=pos[None, :],
                       pos_kind=kind, params=params, pS=sig["pS"][None, :] if "pS" in sig else None)
     return inp, info
 
 
-def check_observable(inp: FilterInput, plant: Plant, name: str = "plant") -> None:
+def _check_position(name: str, t, column: str, pos, plant: Plant) -> None:
+    """Refuse a position outside the plant's stroke [0, x_end] (theta: the joint angles of
+    its ends): the filter would clamp the piston at an end stop at every sample and report
+    a confident, meaningless diagnosis."""
+    p = plant.vector()
+    L = p[P.L_1], p[P.L_2], p[P.L_3]
+    x_end = min(p[P.x_max], piston_position(p[P.theta_max], *L))
+    if column == "x":
+        lo, hi, margin, unit = 0.0, x_end, POSITION_MARGIN_M, "m"
+    else:
+        lo, hi, margin, unit = joint_angle(0.0, *L), joint_angle(x_end, *L), THETA_MARGIN_RAD, "rad"
+    bad = np.isfinite(pos) & ((pos < lo - margin) | (pos > hi + margin))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise UserError(
+            f"{name}: '{column}': {int(bad.sum())} sample(s) outside the plant's stroke "
+            f"{lo:.4g}-{hi:.4g} {unit} (first at data row {i + 1}, t = {t[i]:.6g} s: {pos[i]:.6g} {unit}); "
+            f"check the sensor's zero and sign, or the plant file's x_max, theta_max and L_1-L_3")
+
+
+def check_observable(inp: FilterInput, plant: Plant, name: str = "plant", recording: str = "the recording") -> None:
     """Refuse a plant under which a fault parameter cannot change the measurements.
 
     Simulates the recording's input for up to 2 s with each fault set to a clear
@@ -95,15 +127,16 @@ def check_observable(inp: FilterInput, plant: Plant, name: str = "plant") -> Non
     res = simulate_batch(params, inp.u[0, :T - 1], inp.dt, x0=x0, channels=("p_A", "p_B", "x"))
     ok = [np.isfinite(res[c]).all() for c in ("p_A", "p_B", "x")]
     if not all(ok):
-        raise UserError(f"{name}: the model diverges under this plant and the recording's input; "
-                        "check the plant parameters (volumes, bulk modulus, valve flows)")
+        raise UserError(f"{name}: the model diverges under this plant and the input of {recording}; "
+                        "check the plant parameters (lengths and diameters in m, volumes, B_eff, valve flows)")
     for i, f in enumerate(sizes, start=1):
         effect = max(np.max(np.abs(res["p_A"][i] - res["p_A"][0])), np.max(np.abs(res["p_B"][i] - res["p_B"][0])))
         if not effect > 20e3:
             raise UserError(
                 f"{name}: parameter '{f}' is unobservable with this plant: a fault of "
                 f"{'2 %' if f == 'offset' else '1 L/min at 10 MPa'} changes the chamber pressures by "
-                f"only {effect:.3g} Pa (< the 20 kPa sensor noise); check B_eff, V_0A, V_0B and the valve flows")
+                f"only {effect:.3g} Pa (< the 20 kPa sensor noise) under the input of {recording}; "
+                "check p_S, B_eff, V_0A, V_0B and the valve flows")
 
 
 def learn_reference(ref: Recording, plant: Plant, cfg: FilterConfig, *,
@@ -143,19 +176,22 @@ def reference_baseline(ref: Recording, plant: Plant, th: Thresholds, cfg: Filter
 
 def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
            thresholds: Thresholds | None = None, drop_out_of_range: bool = False,
-           baseline: Recording | np.ndarray | None = None, reference: Recording | None = None):
+           baseline: Recording | np.ndarray | None = None, reference: Recording | None = None,
+           plant_name: str = "plant"):
     """Filter one recording and diagnose it. Returns (output, residuals, stats, diagnosis, info).
 
     ``reference``: a healthy recording of the same machine whose learnt notch flows and bulk
     modulus replace the plant file's (:func:`learn_reference`); the change test keeps its own
     baseline. ``baseline``: a healthy recording whose estimates are the baseline instead
     (:func:`reference_baseline`; for faults present from the start), or (1, 4) baseline
-    values; default: the recording's own estimates over the baseline window of the thresholds."""
+    values; default: the recording's own estimates over the baseline window of the thresholds.
+    ``plant_name``: how messages name the plant (its file)."""
     thresholds = Thresholds.shipped() if thresholds is None else thresholds
     cfg = preset(thresholds.filter) if cfg is None else cfg  # the filter the thresholds were made for
     rec = rec.measured()  # never the true_* columns
     inp, info = filter_input(rec, plant, drop_out_of_range=drop_out_of_range)
-    check_observable(inp, plant, str(rec.source or "recording"))
+    _check_duration(rec, thresholds, own_baseline=baseline is None)
+    check_observable(inp, plant, plant_name, str(rec.source or "the recording"))
     cal = None
     if reference is not None:
         cal = learn_reference(reference, plant, cfg, drop_out_of_range=drop_out_of_range)
@@ -175,20 +211,24 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
     return out, res, stats, diag, info
 
 
+def _check_duration(rec: Recording, th: Thresholds, own_baseline: bool) -> None:
+    """Refuse a recording too short to test: "healthy" would only mean "not looked at"."""
+    needed = th.warmup_s + (th.baseline_s if own_baseline else 0.0) + MIN_TESTED_S
+    duration = float(rec.t[-1] - rec.t[0])
+    if duration < needed:
+        parts = f"{th.warmup_s:g} s filter warm-up" + (f", {th.baseline_s:g} s healthy baseline" if own_baseline else "")
+        raise UserError(f"{rec.source or 'recording'}: 't': only {duration:.3g} s long; a diagnosis needs at least "
+                        f"{needed:g} s ({parts} and {MIN_TESTED_S:g} s to test)")
+
+
 def replay_recording(rec: Recording, plant: Plant, out_dir, *, force: bool = False,
                      thresholds: Thresholds | None = None, drop_out_of_range: bool = False,
-                     figure: bool = True, baseline=None, reference=None) -> Diagnosis:
+                     figure: bool = True, baseline=None, reference=None, plant_name: str = "plant") -> Diagnosis:
     """Replay and write estimates.csv, residuals.csv, diagnosis.json and replay.png into out_dir."""
-    out_dir = Path(out_dir)
-    existing = [f for f in OUTPUT_FILES if (out_dir / f).exists()]
-    if existing and not force:
-        raise UserError(f"{out_dir}: already holds {', '.join(existing)}; use --force to overwrite")
-    if out_dir.exists() and not out_dir.is_dir():
-        raise UserError(f"{out_dir}: exists and is not a folder")
+    out_dir = output_folder(out_dir, OUTPUT_FILES, force)
     thresholds = Thresholds.shipped() if thresholds is None else thresholds
     out, res, stats, diag, info = replay(rec, plant, thresholds=thresholds, drop_out_of_range=drop_out_of_range,
-                                         baseline=baseline, reference=reference)
-    out_dir.mkdir(parents=True, exist_ok=True)
+                                         baseline=baseline, reference=reference, plant_name=plant_name)
     t = rec.t
     _write_estimates(out_dir / "estimates.csv", t, out)
     _write_residuals(out_dir / "residuals.csv", t, res, stats, thresholds)
@@ -263,6 +303,12 @@ def _figure(path: Path, t, out, res, stats, th, diag) -> None:
     for i, (h, g) in enumerate(stats.items()):
         ax3.plot(t, g[0] / th.h[h], f"C{i}", label=f"CUSUM {h} / h")
     ax3.axhline(1.0, color="k", ls="--", label="threshold")
+    # a real fault drives g/h to hundreds or thousands: clip, so that the threshold stays readable
+    top = max((float(np.nanmax(g[0] / th.h[h])) for h, g in stats.items()), default=1.0)
+    ax3.set_ylim(0.0, min(max(2.0, 1.1 * top), FIGURE_CLIP))
+    if top > FIGURE_CLIP:
+        ax3.text(0.99, 0.97, f"clipped at {FIGURE_CLIP:g} (max {top:.3g})", transform=ax3.transAxes,
+                 ha="right", va="top", fontsize=8)
     if "pinned" in res and res["pinned"][0].any():  # stalled / end stop: some tests held
         ax3.fill_between(t, 0, 1, where=res["pinned"][0] > 0, transform=ax3.get_xaxis_transform(),
                          color="0.85", label="pinned at supply / tank (tests held)")

@@ -20,6 +20,10 @@ MOTIONS = {"extend": (1.5, 0.15), "retract": (-1.5, 0.35)}  #: input [V], start 
 LOADS = (0.0, 494.0, 800.0)
 ONSET, DURATION = 0.5, 2.5
 PHASES = {"transient": (ONSET, ONSET + 0.3), "steady": (DURATION - 0.5, DURATION)}
+#: m/s: a healthy piston slower than this over a window is stalled (or on an end stop): the
+#: effects there are a stall's (no valve flow to disturb), not the motion's; e.g. extension at
+#: 800 kg with the reconstructed boom geometry (docs/model.md)
+STALL_V = 1e-3
 QUANTITIES = ("d_pA_kPa", "d_pB_kPa", "d_v_mm_s", "est_K_int_Lpm", "est_K_extA_Lpm", "est_K_extB_Lpm",
               "est_offset_pct", "est_F_d_kN", "r_K_int", "r_K_extA", "r_K_extB", "r_offset+", "r_offset-")
 
@@ -56,7 +60,9 @@ def signature_table(plant: Plant, dt: float = 1e-3, seed: int = 0) -> list[dict]
             h = next(k for k, c in enumerate(sub) if c[0] is None and c[2] == mL)
             for ph, (a, b) in PHASES.items():
                 w = (t >= a) & (t < b)
-                row = {"fault": f, "motion": mo, "load_kg": mL, "phase": ph}
+                v_healthy = float(np.mean(runs.truth["v"][h, w]))
+                row = {"fault": f, "motion": mo, "load_kg": mL, "phase": ph, "v_healthy_mm_s": 1e3 * v_healthy,
+                       "stalled": "yes" if abs(v_healthy) < STALL_V else "no"}
                 row["d_pA_kPa"] = float(np.mean(runs.inp.pA[i, w] - runs.inp.pA[h, w])) / 1e3
                 row["d_pB_kPa"] = float(np.mean(runs.inp.pB[i, w] - runs.inp.pB[h, w])) / 1e3
                 row["d_v_mm_s"] = float(np.mean(runs.truth["v"][i, w] - runs.truth["v"][h, w])) * 1e3
@@ -70,7 +76,7 @@ def signature_table(plant: Plant, dt: float = 1e-3, seed: int = 0) -> list[dict]
 
 def write_signatures(rows: list[dict], out_dir: Path) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
-    keys = ["fault", "motion", "load_kg", "phase", *QUANTITIES]
+    keys = ["fault", "motion", "load_kg", "phase", "v_healthy_mm_s", "stalled", *QUANTITIES]
     csv_path = out_dir / "signatures.csv"
     with csv_path.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys)
@@ -81,7 +87,10 @@ def write_signatures(rows: list[dict], out_dir: Path) -> list[Path]:
     lines = ["# Fault signatures", "",
              "Effect of each fault (leaks 1 L/min at 10 MPa, offset +-2 %) against the same run without it.",
              "`d_*`: change of the measured output; `est_*`: change of the filter estimate; `r_*`: change of the "
-             "residual [sigma]. Windows: transient = first 0.3 s after onset, steady = last 0.5 s.", "",
+             "residual [sigma]. Windows: transient = first 0.3 s after onset, steady = last 0.5 s.",
+             f"`v_healthy_mm_s`: the healthy piston's mean velocity there; `stalled` = yes when it is below "
+             f"{STALL_V * 1e3:g} mm/s (held against the load or on an end stop): those rows show a stall's "
+             "signature (no valve flow), not the motion's.", "",
              "| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
     for r in rows:
         lines.append("| " + " | ".join(_cell(r[k]) for k in keys) + " |")
@@ -105,7 +114,8 @@ def _heatmap(rows, path: Path) -> None:
     cols = list(QUANTITIES)
     M = np.array([[r[c] for c in cols] for r in rows], dtype=float)
     Mn = M / np.maximum(np.abs(M).max(axis=0, keepdims=True), 1e-30)  # per column: sign and relative size
-    labels = [f"{r['fault']} {r['motion']} {int(r['load_kg'])}kg {r['phase']}" for r in rows]
+    labels = [f"{r['fault']} {r['motion']} {int(r['load_kg'])}kg {r['phase']}"
+              + (" (stalled)" if r["stalled"] == "yes" else "") for r in rows]
     fig, ax = plt.subplots(figsize=(10, 0.18 * len(rows) + 2))
     im = ax.imshow(Mn, cmap="RdBu_r", vmin=-1, vmax=1, aspect="auto")
     ax.set_xticks(range(len(cols)), cols, rotation=60, ha="right", fontsize=7)

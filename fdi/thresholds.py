@@ -52,6 +52,11 @@ VOTE_SNR = 3.0
 VOTE_RULES = ("specific", "detectable")
 CONFUSE_ST = 0.2  #: another fault with ST >= this on a voting residual: confusable pair
 FA_LEVEL = 0.01  #: stated false-alarm level per 4 s healthy run
+#: sigma s: the smallest h. Where the healthy runs never lift a CUSUM off 0 (their change
+#: residual stays within the drift: K_int and K_extB in the shipped studies, maxima ~1e-4) the
+#: quantile is ~0 and would alarm on the first sample above the drift; the floor asks for 20 ms
+#: of one spread beyond it.
+H_FLOOR = 0.02
 #: Base sample size of the nuisance GSA. Its healthy runs also set h, a (1 - 0.002) quantile of
 #: their CUSUM maxima, and a Saltelli design has only 2N distinct experiments (input signals)
 #: among its N (k + 2) runs. N = 32 (64 experiments) gave offset+ h = 0.20 sigma s once pinned
@@ -325,7 +330,7 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     st = _healthy_statistics(dev, sd, reg, hidden, ready, th1)
     maxima = {h: g.max(axis=1) for h, g in st.items()}
     q = 1.0 - fa_level / len(maxima)
-    h = {k: float(max(_gumbel_quantile(v, q), np.max(v) * 1.05, 0.02)) for k, v in maxima.items()}
+    h = {k: float(max(_gumbel_quantile(v, q), np.max(v) * 1.05, H_FLOOR)) for k, v in maxima.items()}
     th = replace(th1, h=h, false_alarm_level=fa_level, run_length_s=DURATION,
                  nuisance_sd={p: float(np.sqrt(np.mean(dev[:, i, int(0.5 / DT):] ** 2))) for i, p in enumerate(PARAMS)},
                  source=(f"samfdi fdi thresholds: leakage GSA N={N_leak} ({d_leak.n_runs} runs), nuisance GSA "
@@ -421,13 +426,16 @@ def describe(th: Thresholds) -> str:
     return "\n".join(lines)
 
 
+#: The files :func:`write_thresholds` writes.
+OUTPUT_FILES = ("thresholds.toml", "thresholds.md", "thresholds_gsa.json")
+
+
 def write_thresholds(th: Thresholds, report: dict, out_dir: Path) -> list[Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    p1 = out_dir / "thresholds.toml"
-    p1.write_text(to_toml(th))
-    p2 = out_dir / "thresholds.md"
-    p2.write_text("# FDI thresholds from the sensitivity ranking\n\n" + describe(th) + "\n")
-    p3 = out_dir / "thresholds_gsa.json"
-    p3.write_text(json.dumps(report, indent=1) + "\n")
-    return [p1, p2, p3]
+    texts = (to_toml(th), "# FDI thresholds from the sensitivity ranking\n\n" + describe(th) + "\n",
+             json.dumps(report, indent=1) + "\n")
+    paths = [out_dir / name for name in OUTPUT_FILES]
+    for path, text in zip(paths, texts):
+        path.write_text(text)
+    return paths

@@ -15,12 +15,24 @@ Work is split into chunks; each finished chunk is saved to
 ``DIR/chunks/<name>_<seed>_<CHUNK_VERSION>.npz`` (a few numbers per run) so an interrupted
 run resumes where it stopped. The version tag keeps chunks of an older layout (the
 fixed-onset chunks had no tag and no ``k_onset``) from being mixed in.
+
+A chunk's name does not say which thresholds, plant or run count made it, so the folder
+does: ``DIR/tune.json`` (:func:`manifest`), written when a tune starts there. A later tune
+into the folder with other settings is refused instead of mixing its chunks with these; the
+``--reference`` / ``--bound`` modes are tagged apart and share the folder. Chunks are written
+atomically; one that cannot be read (a damaged file) is reported and recomputed.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
+import os
 import time
+import warnings
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +56,15 @@ ONSET = ONSET_MIN  #: the nominal onset of healthy runs (their windows are not s
 CHUNK_VERSION = "s"
 LOAD_BINS = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))
 HYP = tuple(HYPOTHESES)
+MANIFEST = "tune.json"  #: the settings the folder's chunks were made with (:func:`manifest`)
+#: what a tune writes besides chunks/ and the manifest: in a folder that is not a tune folder
+#: these are the user's own and are not overwritten without ``force``
+OUTPUTS = ("metrics.md", "metrics.json", "thresholds_used.json", "roc.png")
+#: chunk keys every mode writes (a chunk without one of them is damaged)
+CHUNK_KEYS = ("first", "max", "m_L", "k_onset")
+#: per fault type: colormap (one shade per size), line style and marker of its ROC curves
+ROC_STYLE = {"K_int": ("Blues", "-", "o"), "K_extA": ("Greens", "--", "s"), "K_extB": ("Oranges", "-.", "^"),
+             "offset+": ("Purples", ":", "D"), "offset-": ("Reds", (0, (5, 1, 1, 1)), "v")}
 
 
 def draw_onsets(n: int, seed: int) -> np.ndarray:
@@ -153,6 +174,8 @@ def _bank_decisions(out, st, th: Thresholds, first: np.ndarray, k_onset: np.ndar
 
 
 def _jobs(n_runs: int):
+    """(name, fault, size, runs, seed) per chunk: ``n_runs`` healthy runs, and max(CHUNK // 5,
+    n_runs // 5) runs of each fault type and size (the --runs help states this rule)."""
     jobs = [("healthy", None, 0.0, min(CHUNK, n_runs - c), 1000 + c) for c in range(0, n_runs, CHUNK)]
     n_fault = max(CHUNK // 5, n_runs // 5)
     for fault, sizes in FAULT_SIZES.items():
@@ -165,43 +188,58 @@ def _jobs(n_runs: int):
 
 def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, scheduler: str | None = None,
              progress: bool = True, thresholds: Thresholds | None = None, reference: bool = False,
-             bound: bool = False) -> dict:
+             bound: bool = False, force: bool = False) -> dict:
     """The Monte Carlo into ``out_dir`` (resumable); ``reference``: every machine calibrated on a
     healthy reference recording first; ``bound``: also the evidence at the known onset
-    (:mod:`fdi.bound`; about three times the work). Each mode's chunks are tagged apart."""
+    (:mod:`fdi.bound`; about three times the work). Each mode's chunks are tagged apart.
+    ``force``: overwrite the files a tune writes in a folder that is not a tune folder.
+    Every refusal (``out_dir`` not a writable folder, made with other settings, holding the
+    user's files; an unreachable ``scheduler``) is a UserError raised before any computing."""
     out_dir = Path(out_dir)
     chunk_dir = out_dir / "chunks"
-    chunk_dir.mkdir(parents=True, exist_ok=True)
     th = Thresholds.shipped() if thresholds is None else thresholds
-    (out_dir / "thresholds_used.json").write_text(th.to_json() + "\n")
     jobs = _jobs(n_runs)
     tag = _tag(reference, bound)
+    want = manifest(plant, th, n_runs)
+    _make_folder(out_dir)
+    _check_folder(out_dir, want, th, force)
+    todo = _todo(chunk_dir, jobs, tag)  # before the manifest is written: it may refuse an older folder
+    client = _connect(scheduler) if scheduler else None
+    try:
+        _start(out_dir, want, th)
+        timing = _compute(plant, th, chunk_dir, jobs, todo, tag, workers, client, progress, reference, bound)
+    finally:
+        if client is not None:
+            client.close()
+    metrics = analyse(out_dir, jobs, th, tag)
+    metrics["reference"] = reference
+    metrics["timing"] = timing
+    _write_json(out_dir / "metrics.json", metrics)
+    return metrics
+
+
+def _compute(plant: Plant, th: Thresholds, chunk_dir: Path, jobs: list, todo: list, tag: str, workers: int,
+             client, progress: bool, reference: bool, bound: bool) -> dict:
+    """Filter the chunks of ``todo`` (those of ``jobs`` not on disk yet) on ``client``, ``workers``
+    local processes or here, and save each as it finishes; returns the timing of this call
+    (wall_s [s])."""
     old = [p for p in chunk_dir.glob("*.npz") if not p.stem.endswith(f"_{tag}")]
     if old and progress:
         print(f"fdi tune: ignoring {len(old)} chunk file(s) in {chunk_dir} of an older layout or of "
               f"another --reference / --bound mode (this run's tag: {tag!r})")
-    todo = [j for j in jobs if not _chunk_path(chunk_dir, j, tag).exists()]
     from tqdm import tqdm
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="fdi tune", unit="chunk", disable=not progress)
 
     def save(job, res):
-        np.savez(_chunk_path(chunk_dir, job, tag), **res)
+        _save_chunk(_chunk_path(chunk_dir, job, tag), res)
         bar.update(1)
 
     t0 = time.perf_counter()
-    n_todo = sum(j[3] for j in todo)
-    if scheduler:
-        try:
-            from dask.distributed import Client, as_completed
-        except ImportError:
-            raise UserError("--scheduler needs dask[distributed]") from None
-        client = Client(scheduler)
-        try:
-            futs = {client.submit(_chunk_job, plant, th, *j[1:], reference, bound, pure=False): j for j in todo}
-            for fut in as_completed(futs):
-                save(futs[fut], fut.result())
-        finally:
-            client.close()
+    if client is not None:
+        from dask.distributed import as_completed
+        futs = {client.submit(_chunk_job, plant, th, *j[1:], reference, bound, pure=False): j for j in todo}
+        for fut in as_completed(futs):
+            save(futs[fut], fut.result())
     elif workers > 1:
         from concurrent.futures import ProcessPoolExecutor, as_completed
         with ProcessPoolExecutor(workers) as ex:
@@ -213,12 +251,162 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
             save(j, _chunk_job(plant, th, *j[1:], reference, bound))
     bar.close()
     wall = time.perf_counter() - t0
-    metrics = analyse(out_dir, jobs, th, tag)
-    metrics["reference"] = reference
-    metrics["timing"] = {"runs_computed": n_todo, "wall_s": wall, "workers": workers,
-                         "s_per_1000_runs": wall / max(n_todo, 1) * 1000}
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-    return metrics
+    n_todo = sum(j[3] for j in todo)
+    return {"runs_computed": n_todo, "wall_s": wall, "workers": workers,
+            "s_per_1000_runs": wall / max(n_todo, 1) * 1000, "chunks_computed": len(todo), "chunks": len(jobs)}
+
+
+def manifest(plant: Plant, th: Thresholds, n_runs: int) -> dict:
+    """What a tune folder's chunks depend on besides their job and mode tag: the chunk layout,
+    the run count (it sets the chunks' sizes and the fault runs per case) and hashes (sha256)
+    of the thresholds as JSON and of the plant vector (float64 bytes)."""
+    vec = np.ascontiguousarray(plant.vector(), dtype=np.float64)
+    return {"layout": CHUNK_VERSION, "runs": int(n_runs),
+            "thresholds_sha256": hashlib.sha256(th.to_json().encode()).hexdigest(),
+            "plant_sha256": hashlib.sha256(vec.tobytes()).hexdigest()}
+
+
+def _differences(old: dict, new: dict) -> list:
+    """What differs between two manifests, in the words of the command line."""
+    out = []
+    if old.get("runs") != new["runs"]:
+        out.append(f"--runs {old.get('runs')} there, {new['runs']} now")
+    if old.get("thresholds_sha256") != new["thresholds_sha256"]:
+        out.append("other thresholds (--thresholds)")
+    if old.get("plant_sha256") != new["plant_sha256"]:
+        out.append("another plant (--plant)")
+    if old.get("layout") != new["layout"]:
+        out.append(f"chunk layout {old.get('layout')!r} there (another samfdi version), {new['layout']!r} now")
+    return out
+
+
+def _make_folder(out_dir: Path) -> None:
+    """Create ``out_dir`` (not chunks/ yet: a refused folder keeps its contents as they were)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"{out_dir}: --out: is a file, not a folder")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"{out_dir}: --out: cannot create the folder ({exc.strerror or exc})") from None
+
+
+def _check_folder(out_dir: Path, want: dict, th: Thresholds, force: bool) -> None:
+    """Refuse (UserError) a folder whose manifest differs from ``want``, and a folder that is no
+    tune folder but holds a file the tune writes unless ``force``. A folder with chunks and no
+    manifest is a tune from before the manifest: resumed; its thresholds_used.json is checked,
+    its run count when its chunks are read (:func:`_todo`); its plant cannot be."""
+    path = out_dir / MANIFEST
+    hint = "use another --out, or the same settings to resume"
+    if path.exists():
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise UserError(f"{path}: not a readable tune manifest ({exc}); delete it to resume the folder "
+                            f"unchecked, or use another --out") from None
+        diffs = _differences(old, want)
+        if diffs:
+            raise UserError(f"{out_dir}: a tune folder made with other settings: {'; '.join(diffs)}; {hint}")
+        return
+    if any((out_dir / "chunks").glob("*.npz")):
+        used = _read_json(out_dir / "thresholds_used.json")
+        if used is not None and used != json.loads(th.to_json()):
+            raise UserError(f"{out_dir}: a tune folder made with other thresholds (thresholds_used.json differs); {hint}")
+        return
+    mine = [f for f in OUTPUTS if (out_dir / f).exists()]
+    if mine and not force:
+        raise UserError(f"{out_dir}: already holds {', '.join(mine)} and is not a tune folder (no {MANIFEST}); "
+                        "use another --out, or --force to overwrite")
+
+
+def _read_json(path: Path):
+    """The JSON in ``path``; None if it is missing or not JSON."""
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _connect(scheduler: str):
+    """A dask Client on ``scheduler``; an address that cannot be reached is a UserError."""
+    try:
+        from dask.distributed import Client
+    except ImportError:
+        raise UserError("--scheduler needs dask[distributed]") from None
+    try:
+        return Client(scheduler)
+    except (OSError, TimeoutError, ValueError) as exc:  # ValueError: a malformed address
+        raise UserError(f"cannot reach the dask scheduler at {scheduler}: {' '.join(str(exc).split())}") from None
+
+
+def _start(out_dir: Path, want: dict, th: Thresholds) -> None:
+    """Write the manifest (the first write: an unwritable folder is refused here), chunks/ and
+    thresholds_used.json."""
+    try:
+        _write_atomic(out_dir / MANIFEST, (json.dumps(want, indent=2) + "\n").encode())
+        (out_dir / "chunks").mkdir(exist_ok=True)
+        (out_dir / "thresholds_used.json").write_text(th.to_json() + "\n")
+    except OSError as exc:
+        raise UserError(f"{out_dir}: --out: cannot write there ({exc.strerror or exc})") from None
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to a temporary file in ``path``'s folder, then rename it over ``path``:
+    a run killed while writing leaves the old file or none, never a partial one."""
+    _replace_with(path, lambda f: f.write(data))
+
+
+def _save_chunk(path: Path, res: dict) -> None:
+    """Save a chunk's arrays atomically (:func:`_write_atomic`): a chunk that exists is finished."""
+    _replace_with(path, lambda f: np.savez(f, **res))
+
+
+def _replace_with(path: Path, write) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # not *.npz: never taken for a chunk
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _todo(chunk_dir: Path, jobs: list, tag: str) -> list:
+    """The jobs whose chunk is not on disk. A chunk that cannot be read is reported in one line
+    (a warning) and recomputed: it is our own intermediate file. A readable chunk with another
+    run count than its job was made with another --runs (a folder from before the manifest):
+    refused."""
+    todo = []
+    for j in jobs:
+        path = _chunk_path(chunk_dir, j, tag)
+        if not path.exists():
+            todo.append(j)
+            continue
+        n, why = _chunk_runs(path, "b" in tag[len(CHUNK_VERSION):])
+        if n is None:
+            warnings.warn(f"fdi tune: {path} cannot be read ({why}); recomputing it", stacklevel=2)
+            todo.append(j)
+        elif n != j[3]:
+            raise UserError(f"{path}: holds {n} runs where this tune's chunk has {j[3]}: the folder was made "
+                            "with another --runs; use another --out, or the same --runs to resume")
+    return todo
+
+
+def _chunk_runs(path: Path, bound: bool) -> tuple:
+    """(runs in the chunk at ``path``, None) or (None, why it cannot be read). Every array is
+    read, so a damaged member fails here and not in :func:`analyse`."""
+    try:
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+    missing = [k for k in CHUNK_KEYS + (("evidence",) if bound else ()) if k not in arrays]
+    if missing:
+        return None, f"no {', '.join(missing)}"
+    n = {len(arrays[k]) for k in CHUNK_KEYS}
+    return (n.pop(), None) if len(n) == 1 else (None, "arrays of different run counts")
 
 
 def _tag(reference: bool, bound: bool = False) -> str:
@@ -242,6 +430,8 @@ def _load_bin(m):
 
 
 def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> dict:
+    """The metrics of the chunks of ``jobs`` in ``out_dir``/chunks; writes metrics.json (no NaN:
+    null), metrics.md and roc.png there. Rates are fractions of runs, delays in s."""
     chunk_dir = Path(out_dir) / "chunks"
     healthy = _load(chunk_dir, jobs, "healthy", tag)
     hmax = healthy["max"][:, :, 2].max(axis=1)  # per run: max over hypotheses of g/h
@@ -252,52 +442,90 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
     scales = np.geomspace(0.25, 4, 17)
     roc = {"scale": scales.tolist(), "false_alarm": [float((hmax > s).mean()) for s in scales], "detection": {}}
     has_bound = "evidence" in healthy
+    bnd = None
     if has_bound:
-        bound_thr = onset_bound.threshold(healthy["evidence"], th.false_alarm_level)
-        bound_margin = isolate.margin_for(th.false_isolation_level)
+        bnd = (onset_bound.threshold(healthy["evidence"], th.false_alarm_level),
+               isolate.margin_for(th.false_isolation_level))
     rows = []
     for fault, sizes in FAULT_SIZES.items():
         for size in sizes:
             name = f"{fault}_{size:g}"
             d = _load(chunk_dir, jobs, name, tag)
-            k0 = d["k_onset"]  # (runs,) each run's own onset
-            first = np.where(d["first"] >= 0, d["first"], 10**9)
-            any_alarm = first.min(axis=1)
-            before = any_alarm < k0  # alarm before the onset: a false alarm, not a detection
-            detected = (any_alarm < 10**9) & ~before
-            within = detected & ((any_alarm - k0) * DT <= 1.0)
-            right = ("offset+" if size > 0 else "offset-") if fault == "offset" else fault
-            ri = HYP.index(right)
-            if "iso_h" in d:  # likelihood isolation: the bank's decision, taken within 1 s of the onset
-                isolated = within & (d["iso_h"] == ri) & (d["iso_k"] >= k0) & ((d["iso_k"] - k0) * DT <= 1.0)
-                exclusive = isolated  # the bank names one hypothesis
-            else:
-                first_h = np.argmin(first, axis=1)
-                isolated = within & (first_h == ri)
-                # exclusive: within 1 s only the right hypothesis (or a pair the thresholds call confusable)
-                others = [i for i, h in enumerate(HYP) if i != ri]
-                other_within = np.any([(first[:, i] < 10**9) & ((first[:, i] - k0) * DT <= 1.0)
-                                       for i in others], axis=0)
-                exclusive = isolated & ~other_within
-            delay = (any_alarm[detected] - k0[detected]) * DT
-            lb = _load_bin(d["m_L"])
-            rows.append({
-                "fault": fault, "size": size, "unit": "%" if fault == "offset" else "L/min", "runs": int(len(first)),
-                "detected_within_1s": float(within.mean()), "isolated_within_1s": float(isolated.mean()),
-                "isolated_exclusive": float(exclusive.mean()), "alarm_before_onset": float(before.mean()),
-                "mean_delay_s": float(delay.mean()) if delay.size else float("nan"),
-                "isolated_by_load": [float(isolated[lb == i].mean()) if (lb == i).any() else float("nan")
-                                     for i in range(len(LOAD_BINS))],
-            })
-            if has_bound:
-                ok, iso = onset_bound.verdicts(d["evidence"], fault, bound_thr, bound_margin)
-                rows[-1].update({"bound_detectable": float(ok.mean()), "bound_isolable": float(iso.mean()),
-                                 "bound_median_nats": float(np.median(d["evidence"][:, onset_bound.HYPOTHESES.index(fault)]))})
+            rows.append(_fault_row(d, fault, size, bnd))
             ok_pre = d["max"][:, :, 0].max(axis=1)
             post = d["max"][:, :, 1].max(axis=1)
             roc["detection"][name] = [float(((post > s) & (ok_pre <= s)).mean()) for s in scales]
+    smallest, smallest_by_load, smallest_bound = _smallest_sizes(rows, has_bound)
+    n_dec = sum(r["decisions_within_1s"] for r in rows)
+    n_wrong = sum(r["wrong_decisions"] for r in rows)
+    metrics = {"false_alarm_rate": fa, "false_alarm_by_load": fa_by_load, "healthy_runs": int(len(hmax)),
+               "load_bins_kg": LOAD_BINS, "thresholds_source": th.source, "isolation": th.isolation, "rows": rows,
+               "isolation_decisions_within_1s": n_dec, "wrong_isolation_decisions": n_wrong,
+               "wrong_isolation_rate": n_wrong / n_dec if n_dec else float("nan"),
+               "smallest_detected_and_isolated_95pct_within_1s": smallest,
+               "smallest_detected_and_isolated_95pct_within_1s_by_load": smallest_by_load, "roc": roc}
+    if has_bound:
+        metrics["bound"] = {"threshold_nats": bnd[0], "level": th.false_alarm_level, "margin_nats": bnd[1],
+                            "smallest_isolable_95pct": smallest_bound}
+    _write_json(Path(out_dir) / "metrics.json", metrics)
+    reference = tag.startswith(CHUNK_VERSION + "c")
+    (Path(out_dir) / "metrics.md").write_text("\n".join(_markdown(metrics, th, reference)) + "\n")
+    _roc_figure(Path(out_dir) / "roc.png", roc)
+    return metrics
+
+
+def _fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
+    """The metrics.json row of one fault case from its loaded chunks ``d``; ``bnd``: the bound's
+    (threshold, margin) [nats] or None. 'wrong_isolation' = fraction of the runs detected within
+    1 s whose decision within 1 s named another fault hypothesis (the bank's, or with signature
+    isolation the first alarm's)."""
+    k0 = d["k_onset"]  # (runs,) each run's own onset
+    first = np.where(d["first"] >= 0, d["first"], 10**9)
+    any_alarm = first.min(axis=1)
+    before = any_alarm < k0  # alarm before the onset: a false alarm, not a detection
+    detected = (any_alarm < 10**9) & ~before
+    within = detected & ((any_alarm - k0) * DT <= 1.0)
+    right = ("offset+" if size > 0 else "offset-") if fault == "offset" else fault
+    ri = HYP.index(right)
+    if "iso_h" in d:  # likelihood isolation: the bank's decision, taken within 1 s of the onset
+        decided = within & (d["iso_h"] >= 0) & (d["iso_k"] >= k0) & ((d["iso_k"] - k0) * DT <= 1.0)
+        isolated = decided & (d["iso_h"] == ri)
+        wrong = decided & (d["iso_h"] != ri)
+        exclusive = isolated  # the bank names one hypothesis
+    else:
+        first_h = np.argmin(first, axis=1)
+        decided = within
+        isolated = within & (first_h == ri)
+        wrong = within & (first_h != ri)
+        # exclusive: within 1 s only the right hypothesis (or a pair the thresholds call confusable)
+        others = [i for i, h in enumerate(HYP) if i != ri]
+        other_within = np.any([(first[:, i] < 10**9) & ((first[:, i] - k0) * DT <= 1.0)
+                               for i in others], axis=0)
+        exclusive = isolated & ~other_within
+    delay = (any_alarm[detected] - k0[detected]) * DT
+    lb = _load_bin(d["m_L"])
+    row = {
+        "fault": fault, "size": size, "unit": "%" if fault == "offset" else "L/min", "runs": int(len(first)),
+        "detected_within_1s": float(within.mean()), "isolated_within_1s": float(isolated.mean()),
+        "isolated_exclusive": float(exclusive.mean()), "alarm_before_onset": float(before.mean()),
+        "mean_delay_s": float(delay.mean()) if delay.size else float("nan"),
+        "isolated_by_load": [float(isolated[lb == i].mean()) if (lb == i).any() else float("nan")
+                             for i in range(len(LOAD_BINS))],
+        "wrong_isolation": float(wrong.sum() / within.sum()) if within.any() else float("nan"),
+        "decisions_within_1s": int(decided.sum()), "wrong_decisions": int(wrong.sum()),
+    }
+    if bnd is not None:
+        ok, iso = onset_bound.verdicts(d["evidence"], fault, *bnd)
+        row.update({"bound_detectable": float(ok.mean()), "bound_isolable": float(iso.mean()),
+                    "bound_median_nats": float(np.median(d["evidence"][:, onset_bound.HYPOTHESES.index(fault)]))})
+    return row
+
+
+def _smallest_sizes(rows: list, has_bound: bool) -> tuple:
+    """({key: smallest |size| met}, {key: [per load third]}, {key: the bound's}) with keys
+    K_int, K_extA, K_extB, offset+, offset- (:func:`_smallest`; sizes as in FAULT_SIZES)."""
     smallest, smallest_by_load, smallest_bound = {}, {}, {}
-    for fault, sizes in FAULT_SIZES.items():
+    for fault in FAULT_SIZES:
         for sign in ((1, -1) if fault == "offset" else (1,)):
             mine = [r for r in rows if r["fault"] == fault and np.sign(r["size"]) == sign]
             key = fault if fault != "offset" else ("offset+" if sign > 0 else "offset-")
@@ -306,51 +534,97 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
                 smallest_bound[key] = _smallest(mine, lambda r: r["bound_isolable"])
             smallest_by_load[key] = [_smallest(mine, lambda r, b=b: r["isolated_by_load"][b])
                                      for b in range(len(LOAD_BINS))]
-    metrics = {"false_alarm_rate": fa, "false_alarm_by_load": fa_by_load, "healthy_runs": int(len(hmax)),
-               "load_bins_kg": LOAD_BINS, "thresholds_source": th.source, "rows": rows,
-               "smallest_detected_and_isolated_95pct_within_1s": smallest,
-               "smallest_detected_and_isolated_95pct_within_1s_by_load": smallest_by_load, "roc": roc}
-    if has_bound:
-        metrics["bound"] = {"threshold_nats": bound_thr, "level": th.false_alarm_level, "margin_nats": bound_margin,
-                            "smallest_isolable_95pct": smallest_bound}
-    (Path(out_dir) / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    return smallest, smallest_by_load, smallest_bound
+
+
+def _write_json(path: Path, obj) -> None:
+    """``obj`` as JSON with every NaN / inf as null (json.dumps would write NaN: not JSON)."""
+    path.write_text(json.dumps(_json_safe(obj), indent=2, allow_nan=False) + "\n")
+
+
+def _json_safe(x):
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    return x
+
+
+def _f2(v: float, digits: int = 2) -> str:
+    """A rate or delay for metrics.md: ``digits`` decimals, '-' for none (NaN: no run to average)."""
+    return "-" if v is None or not math.isfinite(v) else f"{v:.{digits}f}"
+
+
+def _size_text(key: str, v: float | None) -> str:
+    """A smallest size for metrics.md with its unit: offsets (fractions of spool travel) in %,
+    leaks in L/min at 10 MPa; 'none': not met even at the largest tested size."""
+    if v is None:
+        return "none"
+    return f"{abs(v) * 100:g} %" if key.startswith("offset") else f"{abs(v):g} L/min"
+
+
+def _size_table(label_values: list) -> list:
+    """A Markdown table of smallest sizes: one column per fault key, one row per (label, {key: size})."""
+    keys = list(label_values[0][1])
+    return (["| | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
+            + [f"| {label} | " + " | ".join(_size_text(k, vals[k]) for k in keys) + " |"
+               for label, vals in label_values])
+
+
+def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
+    """The lines of metrics.md from the metrics ``m`` of :func:`analyse`."""
     bins = [f"{int(a)}-{int(round(b))} kg" for a, b in LOAD_BINS]
+    likelihood = th.isolation == "likelihood"  # the bank names one hypothesis: 'exclusive' = 'isolated'
+    wr = m["wrong_isolation_rate"]
     lines = ["# FDI tuning metrics", "",
              f"Thresholds: {th.source} (not fitted to these runs).", "",
              *(["Every machine was first calibrated on a healthy 4 s reference recording of its own (another "
-                 "load and input): `--reference`, as `fdi replay --reference` does.", ""] if tag != CHUNK_VERSION else []),
-             f"Held-out healthy runs: {len(hmax)} x {DURATION:g} s; false-alarm rate (any alarm per run): {fa:.3f}; "
-             "by load " + ", ".join(f"{b}: {v:.3f}" for b, v in zip(bins, fa_by_load)), "",
+                 "load and input): `--reference`, as `fdi replay --reference` does.", ""] if reference else []),
+             f"Held-out healthy runs: {m['healthy_runs']} x {DURATION:g} s; false-alarm rate (any alarm per run): "
+             f"{m['false_alarm_rate']:.3f}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"
+                                                                  for b, v in zip(bins, m["false_alarm_by_load"])), "",
+             f"Isolation decisions within 1 s of the onset (fault runs detected within 1 s): "
+             f"{m['isolation_decisions_within_1s']}, of which wrong (named another fault hypothesis): "
+             f"{m['wrong_isolation_decisions']}" + (f" = {wr:.3f}" if math.isfinite(wr) else ""), "",
              f"Each fault run steps in at its own onset, uniform in [{ONSET_MIN:g}, {ONSET_MAX:g}] s; "
              "'within 1 s', 'before onset' and the delay are per run from its own onset. "
              "'isolated' = detected within 1 s and "
-             + ("the likelihood bank named the fault by 1 s after the onset (data up to its decision only); "
-                "'exclusive' = the same." if th.isolation == "likelihood" else
-                "the first alarm names the fault; 'exclusive' = no other hypothesis alarmed within that second."), "",
-             "| fault | size | runs | within 1 s | isolated | exclusive | alarm before onset | mean delay [s] | "
-             + " | ".join(f"isolated {b}" for b in bins) + " |",
-             "|---|---|---|---|---|---|---|---|" + "---|" * len(bins)]
-    for r in rows:
-        sz = f"{r['size'] * (100 if r['fault'] == 'offset' else 1):+g} {r['unit']}"
-        lines.append(f"| {r['fault']} | {sz} | {r['runs']} | {r['detected_within_1s']:.2f} | {r['isolated_within_1s']:.2f} | "
-                     f"{r['isolated_exclusive']:.2f} | {r['alarm_before_onset']:.2f} | {r['mean_delay_s']:.2f} | "
-                     + " | ".join(f"{v:.2f}" for v in r["isolated_by_load"]) + " |")
-    lines += ["", f"Smallest size detected and isolated within 1 s in >= 95 % of runs: {smallest}", "",
-              "The same per load third (about a third of the runs each; '-': not met at the largest tested size):", "",
-              "| fault | " + " | ".join(bins) + " |", "|---|" + "---|" * len(bins)]
-    lines += [f"| {k} | " + " | ".join("-" if v is None else f"{abs(v) * (100 if k.startswith('offset') else 1):g}"
-                                        for v in vs) + " |" for k, vs in smallest_by_load.items()]
-    if has_bound:
-        lines += _bound_lines(rows, metrics["bound"])
+             + ("the likelihood bank named the fault by 1 s after the onset (data up to its decision only)."
+                if likelihood else
+                "the first alarm names the fault; 'exclusive' = no other hypothesis alarmed within that second.")
+             + " 'wrong isolation' = fraction of the runs detected within 1 s whose "
+             + ("bank decision within 1 s" if likelihood else "first alarm") + " named another fault hypothesis.", ""]
+    cols = ["fault", "size", "runs", "within 1 s", "isolated", *([] if likelihood else ["exclusive"]),
+            "wrong isolation", "alarm before onset", "mean delay [s]", *(f"isolated {b}" for b in bins)]
+    lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in m["rows"]:
+        cells = [r["fault"], _row_size(r), str(r["runs"]), _f2(r["detected_within_1s"]), _f2(r["isolated_within_1s"]),
+                 *([] if likelihood else [_f2(r["isolated_exclusive"])]), _f2(r["wrong_isolation"]),
+                 _f2(r["alarm_before_onset"]), _f2(r["mean_delay_s"]), *(_f2(v) for v in r["isolated_by_load"])]
+        lines.append("| " + " | ".join(cells) + " |")
+    smallest, by_load = m["smallest_detected_and_isolated_95pct_within_1s"], \
+        m["smallest_detected_and_isolated_95pct_within_1s_by_load"]
+    lines += ["", "Smallest size detected and isolated within 1 s in >= 95 % of runs (that size and every larger "
+              "tested size; per load third about a third of the runs each; 'none': not even the largest):", ""]
+    lines += _size_table([("all loads", smallest)]
+                         + [(b, {k: v[i] for k, v in by_load.items()}) for i, b in enumerate(bins)])
+    if "bound" in m:
+        lines += _bound_lines(m["rows"], m["bound"], smallest)
     lines += ["",
               "Thresholds (CUSUM h [sigma s], drift %.2g sigma): %s" % (th.drift, json.dumps(th.h))]
-    (Path(out_dir) / "metrics.md").write_text("\n".join(lines) + "\n")
-    _roc_figure(Path(out_dir) / "roc.png", roc)
-    return metrics
+    return lines
 
 
-def _bound_lines(rows: list, b: dict) -> list:
-    """The metrics.md section of ``--bound``: our detector against the evidence at the known onset."""
+def _row_size(r: dict) -> str:
+    """A row's fault size with sign and unit (offsets in %)."""
+    return f"{r['size'] * (100 if r['fault'] == 'offset' else 1):+g} {r['unit']}"
+
+
+def _bound_lines(rows: list, b: dict, ours: dict) -> list:
+    """The metrics.md section of ``--bound``: our detector against the evidence at the known onset;
+    ``ours``: our smallest sizes met, next to the bound's."""
     lines = ["", "## What the data carry within 1 s of the onset (`--bound`, fdi/bound.py)", "",
              "A bank started at the TRUE onset (which no detector knows), calibration as uncertain constants. "
              f"'detectable': its evidence for the true fault beats {b['threshold_nats']:.1f} nats, what the best "
@@ -359,10 +633,11 @@ def _bound_lines(rows: list, b: dict) -> list:
              "| fault | size | ours: isolated within 1 s | bound: detectable | bound: isolable | median evidence [nats] |",
              "|---|---|---|---|---|---|"]
     for r in rows:
-        sz = f"{r['size'] * (100 if r['fault'] == 'offset' else 1):+g} {r['unit']}"
-        lines.append(f"| {r['fault']} | {sz} | {r['isolated_within_1s']:.2f} | {r['bound_detectable']:.2f} | "
-                     f"{r['bound_isolable']:.2f} | {r['bound_median_nats']:.0f} |")
-    return lines + ["", f"Smallest size the bound isolates in >= 95 % of runs: {b['smallest_isolable_95pct']}"]
+        lines.append(f"| {r['fault']} | {_row_size(r)} | {_f2(r['isolated_within_1s'])} | {_f2(r['bound_detectable'])} | "
+                     f"{_f2(r['bound_isolable'])} | {r['bound_median_nats']:.0f} |")
+    return lines + ["", "Smallest size in >= 95 % of runs (that size and every larger tested size; 'none': not "
+                    "even the largest):", ""] + _size_table([("ours: detected and isolated within 1 s", ours),
+                                                              ("bound: isolable", b["smallest_isolable_95pct"])])
 
 
 def _smallest(rows: list, rate) -> float | None:
@@ -384,10 +659,26 @@ def _roc_figure(path: Path, roc: dict) -> None:
 
     fig, ax = plt.subplots(figsize=(7, 5))
     for name, det in roc["detection"].items():
-        ax.plot(roc["false_alarm"], det, ".-", label=name, lw=0.8)
+        color, style, marker, label = _roc_style(name)
+        ax.plot(roc["false_alarm"], det, color=color, ls=style, marker=marker, ms=3, label=label, lw=0.9)
     ax.set_xlabel("false-alarm rate (held-out healthy runs with any alarm), thresholds scaled together")
     ax.set_ylabel("detected within 1 s (no alarm before onset)")
     ax.legend(fontsize=6, ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def _roc_style(name: str) -> tuple:
+    """(colour, line style, marker, legend label) of the ROC curve of case ``name`` ("K_int_0.25"):
+    each fault type its own colormap, line style and marker, larger sizes darker, so the 17
+    curves stay apart (one 10-colour cycle repeats colours)."""
+    fault, size = name.rsplit("_", 1)
+    size = float(size)
+    key = fault if fault != "offset" else ("offset+" if size > 0 else "offset-")
+    cmap, style, marker = ROC_STYLE[key]
+    sizes = sorted(abs(s) for s in FAULT_SIZES[fault] if np.sign(s) == np.sign(size))
+    shade = 0.4 + 0.6 * (sizes.index(abs(size)) + 1) / len(sizes)
+    import matplotlib
+    label = f"offset {size * 100:+g} %" if fault == "offset" else f"{fault} {size:g} L/min"
+    return matplotlib.colormaps[cmap](shade), style, marker, label

@@ -32,3 +32,20 @@ def did_you_mean(key: str, known) -> str:
     """`` (did you mean 'x'?)`` for the closest known name to a mistyped key, or ``""``."""
     match = difflib.get_close_matches(key, sorted(known), n=1)
     return f" (did you mean '{match[0]}'?)" if match else ""
+
+
+def output_folder(path: str | Path, files: tuple[str, ...] = (), force: bool = False) -> Path:
+    """The folder ``path``, created if needed, before any work is done: a UserError if it is a
+    file, lies under a file, cannot be created, or already holds one of ``files`` (unless
+    ``force``: the user's files are never replaced without being asked)."""
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: --out: exists and is not a folder")
+    existing = [f for f in files if (out / f).exists()]
+    if existing and not force:
+        raise UserError(f"{out}: already holds {', '.join(existing)}; use --force to overwrite")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"{out}: --out: cannot create the folder ({e.strerror or e})") from None
+    return out

@@ -55,6 +55,17 @@ def test_known_leak_detected_isolated_and_sized(leak_csv, tmp_path, capsys):
     assert main(["fdi", "replay", str(leak_csv), "--out", str(out), "--force"]) == 0
 
 
+def test_500_hz_recording_is_accepted_and_diagnosed(leak_csv, tmp_path):
+    """2 ms, the largest step the forward-Euler model takes, as a 500 Hz clock writes it (its
+    mean step is not exactly 2e-3 in floating point): the 1 L/min leak is still found."""
+    from sam import read_recording
+    import fdi
+    r = read_recording(leak_csv)
+    half = Recording(r.t[::2], {k: v[::2] for k, v in r.signals.items()})
+    d = fdi.replay_recording(half, load_plant(), tmp_path / "h", figure=False)
+    assert d.isolated == ["K_extA"] and d.size["K_extA"]["value"] == pytest.approx(1.0, abs=0.15)
+
+
 def test_replay_never_reads_truth(leak_csv, tmp_path):
     from sam import read_recording
     import fdi
@@ -117,6 +128,52 @@ def test_bad_input_messages(tmp_path, capsys):
         assert "th.toml" in err and expect in err and "Traceback" not in err
 
 
+def test_replay_refuses_what_it_cannot_diagnose(tmp_path, capsys):
+    """A recording too short to test, a position outside the plant's stroke (a sensor with the
+    wrong sign), and an --out under a file are refused in one line, before any output; the
+    thresholds and signatures commands do not replace a user's files without --force."""
+    short = tmp_path / "short.csv"
+    write_recording(short, _recording(None, T=1001))
+    flipped = _recording(None, T=3001)
+    flipped.signals["theta"] = -flipped.signals["theta"]
+    neg = tmp_path / "neg.csv"
+    write_recording(neg, flipped)
+    ok = tmp_path / "ok.csv"
+    write_recording(ok, _recording(None, T=3001))
+    for args, expect in (([str(short)], "only 1 s long; a diagnosis needs at least 2 s"),
+                         ([str(neg)], "'theta': 3001 sample(s) outside the plant's stroke"),
+                         ([str(ok), "--out", str(ok / "sub")], "cannot create the folder")):
+        out = ["--out", str(tmp_path / "o")] if "--out" not in args else []
+        assert main(["fdi", "replay", *args, *out]) == 2
+        err = capsys.readouterr().err
+        assert expect in err and "Traceback" not in err, err
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    for cmd, name in ((["thresholds"], "thresholds.md"), (["signatures"], "signatures.md")):
+        (mine / name).write_text("my notes")
+        assert main(["fdi", *cmd, "--out", str(mine)]) == 2
+        assert "use --force" in capsys.readouterr().err
+        assert (mine / name).read_text() == "my notes"
+
+
+def test_plant_that_does_not_fit_is_flagged(tmp_path, capsys):
+    """A plant file whose valve flows are a thousand times too small makes the filter reset and
+    the NIS alarm; the diagnosis says so next to whatever it names (none of the shipped
+    scenarios triggers either on the nominal plant)."""
+    ok = tmp_path / "ok.csv"
+    write_recording(ok, _recording(None, T=4001))
+    plant = tmp_path / "small_valve.toml"
+    plant.write_text("[valve]\n" + "".join(f"Q_N_{n} = 1e-7\n" for n in ("PA", "AT", "PB", "BT")))
+    assert main(["fdi", "replay", str(ok), "--out", str(tmp_path / "nominal")]) == 0
+    assert "warning" not in capsys.readouterr().out
+    assert main(["fdi", "replay", str(ok), "--plant", str(plant), "--out", str(tmp_path / "o")]) == 0
+    assert "warning: the model does not fit this recording" in capsys.readouterr().out
+    d = json.loads((tmp_path / "o" / "diagnosis.json").read_text())
+    assert "does not describe this machine" in d["note"]
+    assert "model_fit_warning" in d["filter_health"]
+
+
 def test_small_leak_mid_run_detected_and_isolated():
     """Nominal plant (no model error), sine 3 V 0.25 Hz, 494 kg: a 0.25 L/min internal leak
     stepping in at 2 s is detected by the change test and isolated as K_int; the healthy
@@ -153,6 +210,14 @@ def test_thresholds_file_round_trip_and_rule(tmp_path):
     assert Thresholds.load(path) == th
 
 
+def test_h_is_the_gumbel_quantile_of_healthy_maxima():
+    """The threshold rule's quantile: a Gumbel fitted by moments to per-run maxima drawn from a
+    known Gumbel (loc 2, scale 0.5) returns that Gumbel's 0.998 quantile, 2 - 0.5 ln(-ln 0.998)."""
+    from fdi.thresholds import _gumbel_quantile
+    x = np.random.default_rng(7).gumbel(2.0, 0.5, 20_000)
+    assert _gumbel_quantile(x, 0.998) == pytest.approx(2.0 - 0.5 * np.log(-np.log(0.998)), rel=0.02)
+
+
 @pytest.mark.slow
 def test_held_out_healthy_false_alarms_and_large_leak_detection():
     """Reduced-size statistics on runs NOT used to set the thresholds: 40 healthy runs
@@ -180,7 +245,7 @@ def test_thresholds_file_selects_its_filter(tmp_path):
     assert Thresholds.shipped().filter == "shipped" and PRESETS["shipped"] == FilterConfig()
     cal = Thresholds.load(SHIPPED_THRESHOLDS.parent / "thresholds_calibrated.toml")
     assert cal.filter == "calibrated" and "GSA" in cal.source
-    rec = _recording(None, T=1501)
+    rec = _recording(None, T=2001)
     out, *_ = replay(rec, load_plant(), thresholds=cal)
     assert out.config == PRESETS["calibrated"] and out.mean.shape[-1] == 12 + len(out.config.calibrate)
     from fdi.thresholds import to_toml

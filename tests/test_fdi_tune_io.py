@@ -1,0 +1,270 @@
+"""`samfdi fdi tune` as a user meets it: the folder it resumes (manifest, damaged chunks,
+the user's own files), bad --out / --scheduler, and what metrics.md / metrics.json / roc.png
+say. The Monte Carlo itself is replaced by hand-made seeded chunks (tune._chunk_job
+monkeypatched), so each test takes well under a second or two."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fdi import tune
+from fdi.detect import Thresholds
+from sam import UserError, load_plant
+from samfdi.cli import build_parser, main
+
+N_RUNS = 10  # 10 healthy runs, max(5, 10 // 5) = 5 runs per fault case: one chunk each
+
+
+def _fake_chunk(plant, th, fault, size, n, seed, reference=False, bound=False):
+    """A chunk as _chunk_job returns it, made by hand (seeded): healthy runs never alarm; fault
+    runs alarm on the right hypothesis 100 ms after their onset and the bank names it there,
+    except that in K_int 0.5 L/min the bank names K_extA in run 0 (a wrong isolation)."""
+    rng = np.random.default_rng(seed)
+    H = len(tune.HYP)
+    k0 = np.round(tune.draw_onsets(n, seed) / tune.DT).astype(np.int64)
+    first = np.full((n, H), -1, dtype=np.int64)
+    iso_h = np.full(n, -1, dtype=np.int64)
+    if fault is not None:
+        right = ("offset+" if size > 0 else "offset-") if fault == "offset" else fault
+        first[:, tune.HYP.index(right)] = k0 + 100
+        iso_h[:] = tune.HYP.index(right)
+        if (fault, size) == ("K_int", 0.5):
+            iso_h[0] = tune.HYP.index("K_extA")
+    res = {"first": first, "max": np.zeros((n, H, 3)), "m_L": rng.uniform(0, 800, n), "resets": np.zeros(n),
+           "k_onset": k0, "iso_h": iso_h, "iso_k": np.where(iso_h >= 0, k0 + 150, -1)}
+    if bound:
+        res["evidence"] = rng.uniform(0, 10, (n, 5))
+    return res
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """The (fault, size, n, seed) of every chunk the tune computes (with the fake Monte Carlo)."""
+    made = []
+
+    def fake(*args):
+        made.append(args[2:6])
+        return _fake_chunk(*args)
+
+    monkeypatch.setattr(tune, "_chunk_job", fake)
+    return made
+
+
+def _tune(out: Path, *extra: str) -> int:
+    return main(["fdi", "tune", "--runs", str(N_RUNS), "--out", str(out), *extra])
+
+
+def test_resume_refuses_a_folder_made_with_other_settings(tmp_path, calls, capsys):
+    """A folder's manifest holds what its chunks were made with: the same settings resume it
+    (nothing computed, same numbers), other --runs, thresholds or plant are refused in one
+    line naming the folder and what differs, before anything is computed."""
+    out = tmp_path / "t"
+    assert _tune(out) == 0
+    n_jobs = len(tune._jobs(N_RUNS))
+    assert len(calls) == n_jobs == 1 + 17
+    man = json.loads((out / "tune.json").read_text())
+    assert man["runs"] == N_RUNS and man["layout"] == tune.CHUNK_VERSION
+    before = json.loads((out / "metrics.json").read_text())["rows"]
+    capsys.readouterr()
+
+    assert _tune(out) == 0  # resume: no --force needed, nothing recomputed
+    assert len(calls) == n_jobs
+    assert json.loads((out / "metrics.json").read_text())["rows"] == before
+    assert f"nothing to compute: all {n_jobs} chunks were already in" in capsys.readouterr().out
+
+    assert main(["fdi", "tune", "--runs", "40", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert str(out) in err and f"--runs {N_RUNS} there, 40 now" in err and "another --out" in err
+    assert len(err.splitlines()) == 1
+    legacy = Path(__file__).parents[1] / "scenarios" / "faults" / "thresholds_legacy.toml"
+    assert _tune(out, "--thresholds", str(legacy)) == 2
+    assert "other thresholds (--thresholds)" in capsys.readouterr().err
+    assert len(calls) == n_jobs  # nothing computed by the refused runs
+
+    plant = load_plant()
+    with pytest.raises(UserError, match="another plant"):
+        tune.run_tune(plant.replace(B_eff=plant.fluid.B_eff * 1.1), out, n_runs=N_RUNS, progress=False)
+    # the --bound mode is tagged apart and shares the folder
+    assert _tune(out, "--bound") == 0
+    assert len(calls) == 2 * n_jobs
+
+
+def test_folder_from_before_the_manifest_is_resumed_and_checked(tmp_path, calls):
+    """chunks/ without tune.json: a tune folder of an older samfdi. Resumed (nothing computed)
+    and given its manifest; but its chunks of another --runs, or its thresholds_used.json of
+    other thresholds, are refused."""
+    out = tmp_path / "t"
+    tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
+    (out / "tune.json").unlink()
+    n = len(calls)
+    tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
+    assert len(calls) == n and json.loads((out / "tune.json").read_text())["runs"] == N_RUNS
+
+    (out / "tune.json").unlink()
+    with pytest.raises(UserError, match="holds 10 runs where this tune's chunk has 20.*another --runs"):
+        tune.run_tune(load_plant(), out, n_runs=20, progress=False)
+    assert not (out / "tune.json").exists()  # the refused settings are not written down as the folder's
+    th = Thresholds.shipped()
+    with pytest.raises(UserError, match="other thresholds"):
+        tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False, thresholds=replace(th, drift=2 * th.drift))
+    assert len(calls) == n
+
+
+def test_damaged_chunk_is_reported_and_recomputed(tmp_path, calls):
+    """A chunk cut short (as `truncate -s 500` does) is reported in one line and recomputed;
+    the metrics equal those of the undamaged folder."""
+    out = tmp_path / "t"
+    tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
+    rows0 = json.loads((out / "metrics.json").read_text())["rows"]
+    job = tune._jobs(N_RUNS)[3]
+    path = tune._chunk_path(out / "chunks", job)
+    with open(path, "r+b") as f:
+        f.truncate(500)
+    n = len(calls)
+    with pytest.warns(UserWarning, match=rf"{path.name} cannot be read \(BadZipFile.*recomputing it"):
+        tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
+    assert calls[n:] == [job[1:]]
+    assert json.loads((out / "metrics.json").read_text())["rows"] == rows0
+
+
+def test_chunks_are_written_atomically(tmp_path, calls, monkeypatch):
+    """A chunk whose write fails half way (disk full, kill) leaves no file under the chunk's
+    name, so the resume does not take a partial file for a finished chunk."""
+    def broken(file, **arrays):
+        (file.write if hasattr(file, "write") else Path(file).write_bytes)(b"PK\x03\x04 partial")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", broken)
+    out = tmp_path / "t"
+    with pytest.raises(OSError, match="No space"):
+        tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
+    assert list((out / "chunks").iterdir()) == []
+
+
+@pytest.mark.parametrize("where", ["file", "under_file", "proc"])
+def test_bad_out_is_one_line_before_any_computing(tmp_path, calls, capsys, where):
+    """--out that is a file, lies under a file, or cannot be created: exit 2, one line."""
+    (tmp_path / "some.csv").write_text("t,u\n")
+    if where == "proc" and not Path("/proc").is_dir():
+        pytest.skip("no /proc")
+    out = {"file": tmp_path / "some.csv", "under_file": tmp_path / "some.csv" / "sub", "proc": Path("/proc/x")}[where]
+    assert _tune(out) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(out) in err and "--out" in err
+    assert calls == [] and (tmp_path / "some.csv").read_text() == "t,u\n"
+
+
+def test_unreachable_scheduler_is_one_line(tmp_path, calls, capsys):
+    """A dask scheduler that does not answer: exit 2 with 'cannot reach the dask scheduler'."""
+    dask = pytest.importorskip("dask")
+    pytest.importorskip("dask.distributed")
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):  # the default waits 30 s
+        assert _tune(tmp_path / "t", "--scheduler", "tcp://127.0.0.1:1") == 2
+    err = capsys.readouterr().err.strip()
+    assert "cannot reach the dask scheduler at tcp://127.0.0.1:1: " in err and len(err.splitlines()) == 1
+    assert calls == []
+
+
+def test_users_files_are_not_overwritten_without_force(tmp_path, calls, capsys):
+    """A folder that is no tune folder but holds a file the tune writes is refused (the file
+    unchanged); --force writes there; the tune folder it then is resumes without --force."""
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "metrics.md").write_text("my notes\n")
+    (out / "roc.png").write_bytes(b"my figure")
+    assert _tune(out) == 2
+    err = capsys.readouterr().err
+    assert "already holds metrics.md, roc.png" in err and "--force" in err
+    assert (out / "metrics.md").read_text() == "my notes\n" and (out / "roc.png").read_bytes() == b"my figure"
+    assert calls == [] and not (out / "chunks").exists()
+    assert _tune(out, "--force") == 0
+    assert (out / "metrics.md").read_text().startswith("# FDI tuning metrics")
+    assert _tune(out) == 0
+
+
+def _hand_made_folder(tmp_path: Path, bound: bool) -> tuple:
+    """A tune folder of hand-made chunks (one per job of N_RUNS runs): (jobs, tag)."""
+    jobs, tag = tune._jobs(N_RUNS), tune._tag(False, bound)
+    (tmp_path / "chunks").mkdir()
+    for j in jobs:
+        np.savez(tune._chunk_path(tmp_path / "chunks", j, tag), **_fake_chunk(None, None, *j[1:], bound=bound))
+    return jobs, tag
+
+
+def test_metrics_json_is_valid_json_with_wrong_isolation(tmp_path):
+    """metrics.json has no NaN (null where nothing was measured: a fault case never detected
+    has no mean delay) and gives the wrong isolations: 1 of the 5 K_int 0.5 L/min runs, all
+    detected within 1 s, was named K_extA -> 0.2; overall 1 of the 16 detected cases x 5 runs."""
+    jobs, tag = _hand_made_folder(tmp_path, False)
+    path = tune._chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "K_extB_0.1"), tag)
+    d = dict(np.load(path))
+    d["first"][:] = -1  # never alarmed: no delay to average
+    np.savez(path, **d)
+    tune.analyse(tmp_path, jobs, Thresholds.shipped(), tag)
+    text = (tmp_path / "metrics.json").read_text()
+    m = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in metrics.json"))
+    rows = {(r["fault"], r["size"]): r for r in m["rows"]}
+    assert rows[("K_extB", 0.1)]["mean_delay_s"] is None and rows[("K_extB", 0.1)]["wrong_isolation"] is None
+    assert rows[("K_int", 0.5)]["wrong_isolation"] == 0.2 and rows[("K_int", 0.5)]["isolated_within_1s"] == 0.8
+    assert rows[("K_int", 1.0)]["wrong_isolation"] == 0.0
+    assert (m["isolation_decisions_within_1s"], m["wrong_isolation_decisions"]) == (16 * 5, 1)
+    assert m["wrong_isolation_rate"] == pytest.approx(1 / 80)
+
+
+def test_metrics_md_tables_with_units_and_no_exclusive_column(tmp_path):
+    """metrics.md: no 'exclusive' column with likelihood isolation (it equals 'isolated'), a
+    'wrong isolation' column and overall line, the smallest sizes as tables in L/min and %
+    (also the bound's)."""
+    jobs, tag = _hand_made_folder(tmp_path, True)
+    m = tune.analyse(tmp_path, jobs, Thresholds.shipped(), tag)
+    md = (tmp_path / "metrics.md").read_text()
+    assert "exclusive" not in md and "{'" not in md
+    header = next(line for line in md.splitlines() if line.startswith("| fault | size | runs"))
+    i = header.strip("|").split(" | ").index("wrong isolation")
+    k_int_05 = next(line for line in md.splitlines() if line.startswith("| K_int | +0.5 L/min | 5 |"))
+    assert k_int_05.strip("|").split(" | ")[i].strip() == "0.20"
+    assert "(fault runs detected within 1 s): 85, of which wrong (named another fault hypothesis): 1 = 0.012" in md
+    # every size is isolated in all runs but K_int 0.5 L/min (80 %): K_int from 1 L/min on
+    assert "| all loads | 1 L/min | 0.1 L/min | 0.1 L/min | 1 % | 1 % |" in md
+    assert m["smallest_detected_and_isolated_95pct_within_1s"]["offset+"] == 0.01
+    assert "| ours: detected and isolated within 1 s | 1 L/min | 0.1 L/min | 0.1 L/min | 1 % | 1 % |" in md
+    assert "| bound: isolable |" in md
+    assert "--reference" not in md  # a --bound tune calibrates nothing
+
+
+def test_roc_curves_are_distinguishable(tmp_path, monkeypatch):
+    """roc.png: 17 curves, no two with the same colour and line style; a fault type's sizes
+    share a line style and differ in shade."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    monkeypatch.setattr(plt, "close", lambda fig=None: None)  # keep the figure to look at it
+    names = [f"{f}_{s:g}" for f, sizes in tune.FAULT_SIZES.items() for s in sizes]
+    roc = {"false_alarm": [0.0, 0.5, 1.0], "detection": {n: [0.1, 0.5, 0.9] for n in names}}
+    tune._roc_figure(tmp_path / "roc.png", roc)
+    lines = plt.gcf().axes[0].get_lines()
+    plt.close("all")
+    assert len(lines) == 17
+    looks = {(matplotlib.colors.to_hex(ln.get_color()), str(ln.get_linestyle())) for ln in lines}
+    assert len(looks) == 17
+    k_int = [ln for ln, n in zip(lines, names) if n.startswith("K_int")]
+    assert len({str(ln.get_linestyle()) for ln in k_int}) == 1 and len({ln.get_color() for ln in k_int}) == 4
+
+
+def test_help_states_the_workers_and_runs_rules():
+    """--workers is a process pool (dask only with --scheduler); --runs states the fault-run
+    rule of _jobs, checked against it."""
+    sub = build_parser()._subparsers._group_actions[0].choices["fdi"]._subparsers._group_actions[0].choices["tune"]
+    helps = {a.dest: a.help for a in sub._actions}
+    assert "process pool" in helps["workers"] and "(dask)" not in helps["workers"]
+    assert "max(5, N // 5) per fault type and size" in helps["runs"]
+    assert "force" in helps
+    for n in (5, 10, 24, 25, 26, 230):
+        per_case = sum(j[3] for j in tune._jobs(n) if j[0] == "K_int_0.25")
+        assert per_case == max(5, n // 5) and sum(j[3] for j in tune._jobs(n) if j[0] == "healthy") == n
