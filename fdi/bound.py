@@ -40,16 +40,23 @@ def onset_evidence(out: FilterOutput, k_onset: np.ndarray, window_s: float = 1.0
     rows = np.arange(B)
     T = out.inp.u.shape[1]
     k1 = np.minimum(k0 + int(round(window_s / out.inp.dt)), T)
-    ref = isolate.run_reference(out, rows, k1)
+    ref = isolate.run_reference(out, rows, k0 + 1)  # the seed is its posterior at k0: no further
     bank = isolate.run_bank_calibrated(out, ref, rows, k0, k1, HYPOTHESES)
-    ll = bank.loglik[rows, :, k1 - k0 - 1]
+    ll = bank.loglik[rows, :, k1 - k0 - 1]  # the window's last valid sample
     return ll - ll[:, :1]
 
 
 def threshold(healthy: np.ndarray, level: float) -> float:
     """The evidence [nats] that the healthy runs' best fault hypothesis exceeds in a fraction
-    ``level`` of them (the (1 - level) empirical quantile over runs of ``healthy`` (B, H))."""
-    return float(np.quantile(healthy[:, 1:].max(axis=1), 1.0 - level))
+    ``level`` of them (the (1 - level) empirical quantile over runs of ``healthy`` (B, H)), and
+    at least ln(1 / level), a Bayes factor of 1 / level: a few healthy runs can put the quantile
+    below 0, where any fault would count as detectable."""
+    return float(max(np.quantile(healthy[:, 1:].max(axis=1), 1.0 - level), np.log(1.0 / level)))
+
+
+def enough_healthy_runs(level: float) -> int:
+    """Healthy runs needed before the (1 - level) quantile rests on a few runs beyond it (3)."""
+    return int(np.ceil(3.0 / level))
 
 
 def verdicts(evidence: np.ndarray, hypothesis: str, thr: float, margin: float) -> tuple:

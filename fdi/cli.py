@@ -54,6 +54,10 @@ def add_commands(subparsers) -> None:
                         "leakage box is >= 3 healthy spreads: for the likelihood isolation, which names the fault "
                         "itself) or specific (the fault explains >= half of the residual's variance: for "
                         "isolation = \"signature\", which names the first alarm's fault)")
+    g.add_argument("--sample-rate", type=float, default=1000.0,
+                   help="Hz: the sampling rate of the recordings the thresholds are for (default 1000; "
+                   "1000 / rate must be a whole number, at least 100 Hz); replay refuses a recording "
+                   "sampled at another rate than its thresholds'")
     g.add_argument("--out", required=True, help="output folder: thresholds.toml, thresholds.md, thresholds_gsa.json")
     g.add_argument("--force", action="store_true", help="overwrite existing output files")
     g.set_defaults(func=_thresholds)
@@ -101,10 +105,16 @@ def _load_thresholds(path):
 
 
 def _thresholds(args) -> int:
+    from .replay import MIN_SAMPLE_RATE_HZ
     from .thresholds import OUTPUT_FILES, compute_thresholds, describe, write_thresholds
 
     if args.workers < 1:
         raise UserError(f"--workers: must be >= 1, got {args.workers}")
+    k = 1000.0 / args.sample_rate if args.sample_rate > 0 else float("inf")
+    if not (abs(k - round(k)) < 1e-3 * k and 1 <= round(k) <= 1000 / MIN_SAMPLE_RATE_HZ):  # 333.33 Hz: 3 ms
+        raise UserError(f"--sample-rate: {args.sample_rate:g} Hz; the studies simulate at 1 kHz and can sample "
+                        f"every 1, 2, ..., {int(1000 / MIN_SAMPLE_RATE_HZ)} ms: 1000, 500, 333.33, 250, 200, ..., "
+                        f"{MIN_SAMPLE_RATE_HZ:g} Hz")
     for name, n in (("--n-leak", args.n_leak), ("--n-nuisance", args.n_nuisance)):
         if n < 4:
             raise UserError(f"{name}: need at least 4, got {n}")
@@ -115,7 +125,7 @@ def _thresholds(args) -> int:
     out = output_folder(args.out, OUTPUT_FILES, args.force)
     th, report = compute_thresholds(plant, N_leak=args.n_leak, N_nuisance=args.n_nuisance,
                                     workers=args.workers, filter=args.filter, detector=args.detector,
-                                    vote_rule=args.votes, progress=True)
+                                    vote_rule=args.votes, progress=True, sample_dt_s=round(k) * 1e-3)
     print(describe(th))
     for p in write_thresholds(th, report, out):
         print(f"wrote {p}")
@@ -150,8 +160,8 @@ def _replay(args) -> int:
         print(f"predicted through {diag.filter_health['nan_samples']} sample(s) with missing measurements")
     if diag.filter_health.get("u_gaps_held"):
         print(f"held the input u through {diag.filter_health['u_gaps_held']} missing sample(s)")
-    if diag.filter_health.get("model_fit_warning"):
-        print(f"warning: {diag.filter_health['model_fit_warning']}")
+    if diag.note:
+        print(f"note: {diag.note}")
     print(f"wrote {Path(args.out)}/estimates.csv, residuals.csv, diagnosis.json, replay.png")
     return 0
 

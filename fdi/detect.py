@@ -108,6 +108,10 @@ class Thresholds:
     nis_hold_s: float = 0.5  #: ... when held this long
     false_alarm_level: float = 0.01  #: the level the h were chosen for (per run)
     run_length_s: float = 4.0  #: ... over healthy runs of this length
+    #: s: the sampling step of the recordings the thresholds were derived for. sigma and h depend
+    #: on it (measured: the 1 kHz thresholds give 12 % false alarms on 500 Hz recordings), so
+    #: replay refuses a recording sampled otherwise (``samfdi fdi thresholds --sample-rate``)
+    sample_dt_s: float = 1e-3
     #: absolute spread of each estimate (SI), for the confidence and the absolute residual r_*
     nuisance_sd: dict = field(default_factory=lambda: {
         "K_int": 1.00e-9, "K_extA": 5.14e-10, "K_extB": 6.07e-10, "offset": 5.19e-3})
@@ -269,6 +273,18 @@ def change_residuals(out: FilterOutput, th: "Thresholds", baseline: np.ndarray |
     """Change residuals d_<param> = (estimate - baseline) / sqrt(sd^2 + sigma_regime^2),
     name -> (B, T), the regime index (B, T) and the samples at which each is held (B, 4, T;
     :func:`held`). Zero before the baseline is known."""
+    reg, hidden, base, ready = _test_masks(out, th, baseline, u)
+    res = {}
+    for i, (name, j) in enumerate(PARAMS.items()):
+        sig = np.asarray(th.sigma[name], dtype=float)[reg]
+        sd = np.sqrt(out.std[:, :, j] ** 2 + sig**2)
+        r = (out.mean[:, :, j] - base[:, i:i + 1]) / np.maximum(sd, 1e-300)
+        res[name] = np.where(ready[:, i], r, 0.0)
+    return res, reg, hidden
+
+
+def _test_masks(out: FilterOutput, th: "Thresholds", baseline=None, u: np.ndarray | None = None):
+    """(regime (B, T), held (B, 4, T), baseline (B, 4), armed (B, 4, T)) of the change tests."""
     dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
     u = out.u if u is None else u
     reg = regimes(u, dt, th.band_V, th.transient_s) if u is not None else np.full(out.mean.shape[:2], 2, np.int8)
@@ -278,13 +294,18 @@ def change_residuals(out: FilterOutput, th: "Thresholds", baseline: np.ndarray |
     else:
         base = np.broadcast_to(np.atleast_2d(baseline), (out.mean.shape[0], 4))
         ready = np.broadcast_to(out.t >= th.warmup_s, hidden.shape)
-    res = {}
-    for i, (name, j) in enumerate(PARAMS.items()):
-        sig = np.asarray(th.sigma[name], dtype=float)[reg]
-        sd = np.sqrt(out.std[:, :, j] ** 2 + sig**2)
-        r = (out.mean[:, :, j] - base[:, i:i + 1]) / np.maximum(sd, 1e-300)
-        res[name] = np.where(ready[:, i], r, 0.0)
-    return res, reg, hidden
+    return reg, hidden, base, ready
+
+
+def tested_seconds(out: FilterOutput, th: "Thresholds", baseline=None) -> np.ndarray:
+    """(B, 4) seconds in which each parameter's change test ran: armed (after its baseline),
+    voting in the regime, not held by pinned pressures. A parameter tested for less than
+    MIN_TESTED_S was not looked at, whatever the statistic says."""
+    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    reg, hidden, _, ready = _test_masks(out, th, baseline)
+    votes = np.stack([np.asarray(th.votes[p], dtype=bool)[reg] for p in PARAMS], axis=1)
+    warm = out.t >= th.warmup_s
+    return (ready & ~hidden & votes & warm).sum(axis=2) * dt
 
 
 def residuals(out: FilterOutput, th: "Thresholds | None" = None, baseline=None) -> dict[str, np.ndarray]:
@@ -452,9 +473,16 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
         else:
             status, isolated = "several faults", names
     warning = model_fit_warning(nis_time, health)
-    if warning and not (status == "fault, not isolable" and not names):  # that note says it already
+    if warning:
         health["model_fit_warning"] = warning
-        note = f"{note}; {warning}" if note else warning
+        if not (status == "fault, not isolable" and not names):  # that note says it already
+            note = f"{note}; {warning}" if note else warning
+    tested = tested_seconds(out, th, baseline)[b]
+    health["tested_s"] = {p: float(s) for p, s in zip(PARAMS, tested)}
+    untested = [p for p, s in zip(PARAMS, tested) if s < MIN_TESTED_S]
+    if untested and status == "healthy":
+        note = (f"healthy as far as tested: {', '.join(untested)} tested for less than {MIN_TESTED_S:g} s "
+                "(the pressures pinned at supply and tank, or the recording too short after the baseline)")
     return Diagnosis(
         status=status, isolated=isolated, detection_time_s=(alarms[names[0]] if names else nis_time),
         alarms=alarms, size=size, confidence=conf, model_fit_alarm_s=nis_time, filter_health=health,
@@ -467,6 +495,12 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
                     "isolation": th.isolation, "source": th.source},
         note=note,
     )
+
+
+#: s: a parameter's change test that ran for less than this (armed, unpinned, voting) has not
+#: looked at it: the test needs a few tenths of a second of a fault to alarm (mean delays
+#: 0.1-0.5 s at 0.25-1 L/min), so "healthy" would mean "not looked at"
+MIN_TESTED_S = 0.5
 
 
 def model_fit_warning(nis_time: float | None, health: dict) -> str:

@@ -17,24 +17,27 @@ from sam.errors import output_folder
 from sam.geometry import joint_angle, piston_position
 
 from . import calibration
-from .detect import HYPOTHESES, PARAMS, Diagnosis, Thresholds, diagnose, held, residuals, statistics
+from .detect import (
+    HYPOTHESES, MIN_TESTED_S, PARAMS, Diagnosis, Thresholds, diagnose, held, residuals, statistics,
+)
 from .ukf import (
     FAULT_STATES, POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
-    preset, run_filter,
+    model_substeps, preset, run_filter,
 )
 
 SENSOR_RANGE_PA = (0.0, 25e6)  #: pressure sensors of the SAM
 RANGE_MARGIN_PA = 0.5e6  #: noise around the range ends that is still accepted
-MAX_DT = 2e-3  #: s, the forward-Euler model step is the sampling step: stable up to here
-DT_TOLERANCE = 1e-9  #: relative: a 500 Hz clock whose mean step reads 2.000000001 ms is 2 ms
-#: Position readings may stray this far outside the plant's stroke (sensor offset and noise);
-#: further out the recording and the plant file describe different machines.
-#: s: the shortest stretch worth testing after the warm-up and the baseline: the bank decides
-#: no earlier than isolate.MIN_EVIDENCE_S = 0.6 s after its start, so less could say "healthy"
-#: of a fault that had no chance to show.
-MIN_TESTED_S = 0.5
+#: Hz: the coarsest sampling replay accepts. The model is stepped every <= 1 ms whatever the
+#: rate (fdi.ukf.model_substeps), and thresholds derived for the rate (``samfdi fdi thresholds
+#: --sample-rate``) keep the false alarms at their level, but detection fades with the rate:
+#: measured, 0.5 L/min leaks and 2 % offsets found within 1 s in 74 / 49 / 26 / 1 of 75 runs at
+#: 1000 / 500 / 200 / 100 Hz (docs/fdi.md, "Sampling rate"); below 100 Hz nothing is left
+MIN_SAMPLE_RATE_HZ = 100.0
+#: relative: a recording's step against its thresholds' (the format allows 1 % of jitter)
+DT_TOLERANCE = 0.01
+#: m: how far a position reading may stray outside the plant's stroke (sensor zero and noise);
+#: further out the recording and the plant file describe different machines
 POSITION_MARGIN_M = 0.005
-THETA_MARGIN_RAD = 0.01
 OUTPUT_FILES = ("estimates.csv", "residuals.csv", "diagnosis.json", "replay.png")
 FIGURE_CLIP = 5.0  #: the replay figure shows statistic / threshold up to this
 
@@ -45,28 +48,25 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
     if rec.n < 10:
         raise UserError(f"{name}: only {rec.n} samples; the filter needs at least 10")
     dt = rec.dt
-    if not (dt <= MAX_DT * (1.0 + DT_TOLERANCE)):
-        raise UserError(f"{name}: 't': sampling step {dt * 1e3:.3g} ms is above {MAX_DT * 1e3:g} ms; the filter "
-                        "steps the model at the sampling step and forward Euler is not stable there: "
-                        "record at 1 kHz or faster")
+    if not (dt <= (1.0 + DT_TOLERANCE) / MIN_SAMPLE_RATE_HZ):
+        raise UserError(f"{name}: 't': sampled every {dt * 1e3:.3g} ms ({1 / dt:.4g} Hz); the filter needs "
+                        f"{MIN_SAMPLE_RATE_HZ:g} Hz or faster to follow the chamber pressures")
     info = {"samples": rec.n, "dt_s": dt, "position": "x" if "x" in rec.signals else "theta",
             "supply_pressure_measured": "pS" in rec.signals, "out_of_range_samples": 0,
             "ignored_optional_columns": sorted(set(rec.signals) & {"v", "xs"})}
     sig = {k: np.array(v, dtype=float) for k, v in rec.signals.items()}
     for ch in ("pA", "pB", "pS"):
-        if ch not in sig:
-            continue
-        a = sig[ch]
-        bad = np.isfinite(a) & ((a < SENSOR_RANGE_PA[0] - RANGE_MARGIN_PA) | (a > SENSOR_RANGE_PA[1] + RANGE_MARGIN_PA))
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            if not drop_out_of_range:
-                raise UserError(
-                    f"{name}: '{ch}': {int(bad.sum())} sample(s) outside the sensor range 0-25 MPa "
-                    f"(first at data row {i + 1}, t = {rec.t[i]:.6g} s: {a[i]:.6g} Pa); "
-                    "use --drop-out-of-range to treat them as missing samples")
-            a[bad] = np.nan
-            info["out_of_range_samples"] += int(bad.sum())
+        if ch in sig:
+            a = sig[ch]
+            bad = np.isfinite(a) & ((a < SENSOR_RANGE_PA[0] - RANGE_MARGIN_PA) | (a > SENSOR_RANGE_PA[1] + RANGE_MARGIN_PA))
+            _drop(name, rec.t, ch, a, bad, "Pa", "the sensor range 0-25 MPa", drop_out_of_range, info)
+    column = "x" if "x" in sig else "theta"
+    bad, stroke = _outside_stroke(column, sig[column], plant)
+    _drop(name, rec.t, column, sig[column], bad, "m" if column == "x" else "rad", stroke, drop_out_of_range, info,
+          hint="check the sensor's zero and sign, or the plant file; ")
+    for ch in ("pA", "pB", column):
+        if not np.isfinite(sig[ch]).any():  # --drop-out-of-range left nothing of it
+            raise UserError(f"{name}: '{ch}': every sample is outside its valid range; nothing is left to filter")
     u = sig["u"]
     if np.isnan(u).any():  # the input drives the model: hold the last value through a gap
         idx = np.where(np.isfinite(u), np.arange(len(u)), 0)
@@ -74,35 +74,48 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
         u = u[idx]
         u[~np.isfinite(u)] = 0.0
         info["u_gaps_held"] = int(np.isnan(sig["u"]).sum())
-    if "x" in sig:
-        pos, kind = sig["x"], POS_X
-    else:
-        pos, kind = sig["theta"], POS_THETA
-    _check_position(name, rec.t, "x" if kind == POS_X else "theta", pos, plant)
+    pos, kind = sig[column], POS_X if column == "x" else POS_THETA
     params = plant.vector()[None, :]
     inp = FilterInput(dt=dt, u=u[None, :], pA=sig["pA"][None, :], pB=sig["pB"][None, :], pos=pos[None, :],
                       pos_kind=kind, params=params, pS=sig["pS"][None, :] if "pS" in sig else None)
     return inp, info
 
 
-def _check_position(name: str, t, column: str, pos, plant: Plant) -> None:
-    """Refuse a position outside the plant's stroke [0, x_end] (theta: the joint angles of
-    its ends): the filter would clamp the piston at an end stop at every sample and report
-    a confident, meaningless diagnosis."""
+def _drop(name: str, t, column: str, a: np.ndarray, bad: np.ndarray, unit: str, valid: str,
+          drop: bool, info: dict, hint: str = "") -> None:
+    """Samples ``bad`` of column ``a`` lie outside ``valid``: refuse the recording (UserError)
+    or, with ``drop`` (--drop-out-of-range), make them missing samples (NaN, in place) and count
+    them in ``info``."""
+    if not bad.any():
+        return
+    i = int(np.flatnonzero(bad)[0])
+    if not drop:
+        raise UserError(f"{name}: '{column}': {int(bad.sum())} sample(s) outside {valid} (first at data row "
+                        f"{i + 1}, t = {t[i]:.6g} s: {a[i]:.6g} {unit}); {hint}use --drop-out-of-range to treat "
+                        "them as missing samples")
+    a[bad] = np.nan
+    info["out_of_range_samples"] += int(bad.sum())
+
+
+def _outside_stroke(column: str, pos: np.ndarray, plant: Plant) -> tuple[np.ndarray, str]:
+    """(bad (T,), description): samples of the position column ("x" [m] or "theta" [rad]) whose
+    piston position lies outside the plant's stroke [0, x_end] by more than POSITION_MARGIN_M
+    (theta outside (0, pi) has no position). Outside it the filter would hold the piston on an
+    end stop at every sample and report a confident, meaningless diagnosis."""
     p = plant.vector()
     L = p[P.L_1], p[P.L_2], p[P.L_3]
-    x_end = min(p[P.x_max], piston_position(p[P.theta_max], *L))
+    x_joint = piston_position(p[P.theta_max], *L)
+    x_end = min(p[P.x_max], x_joint)
     if column == "x":
-        lo, hi, margin, unit = 0.0, x_end, POSITION_MARGIN_M, "m"
+        x = pos
     else:
-        lo, hi, margin, unit = joint_angle(0.0, *L), joint_angle(x_end, *L), THETA_MARGIN_RAD, "rad"
-    bad = np.isfinite(pos) & ((pos < lo - margin) | (pos > hi + margin))
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise UserError(
-            f"{name}: '{column}': {int(bad.sum())} sample(s) outside the plant's stroke "
-            f"{lo:.4g}-{hi:.4g} {unit} (first at data row {i + 1}, t = {t[i]:.6g} s: {pos[i]:.6g} {unit}); "
-            f"check the sensor's zero and sign, or the plant file's x_max, theta_max and L_1-L_3")
+        x = np.where((pos > 0.0) & (pos < np.pi), piston_position(np.clip(pos, 0.0, np.pi), *L), np.nan)
+    bad = np.isfinite(pos) & ~((x >= -POSITION_MARGIN_M) & (x <= x_end + POSITION_MARGIN_M))
+    ends = ("" if column == "x" else
+            f"theta {joint_angle(0.0, *L):.4g}-{joint_angle(x_end, *L):.4g} rad, i.e. ") + f"x 0-{x_end:.4g} m"
+    limit = (f"theta_max {p[P.theta_max]:g} rad limits x_max {p[P.x_max]:g} m" if x_joint < p[P.x_max]
+             else f"x_max {p[P.x_max]:g} m")
+    return bad, f"the plant's stroke ({ends}, +-{POSITION_MARGIN_M * 1e3:g} mm; {limit})"
 
 
 def check_observable(inp: FilterInput, plant: Plant, name: str = "plant", recording: str = "the recording") -> None:
@@ -124,7 +137,9 @@ def check_observable(inp: FilterInput, plant: Plant, name: str = "plant", record
     params = np.array(rows)
     from sam import initial_state
     x0 = initial_state(params, x=0.05)
-    res = simulate_batch(params, inp.u[0, :T - 1], inp.dt, x0=x0, channels=("p_A", "p_B", "x"))
+    n_sub = model_substeps(inp.dt)  # the model steps the filter takes: a coarse recording's input held
+    res = simulate_batch(params, np.repeat(inp.u[0, :T - 1], n_sub), inp.dt / n_sub, x0=x0,
+                         record_every=n_sub, channels=("p_A", "p_B", "x"))
     ok = [np.isfinite(res[c]).all() for c in ("p_A", "p_B", "x")]
     if not all(ok):
         raise UserError(f"{name}: the model diverges under this plant and the input of {recording}; "
@@ -191,6 +206,7 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
     rec = rec.measured()  # never the true_* columns
     inp, info = filter_input(rec, plant, drop_out_of_range=drop_out_of_range)
     _check_duration(rec, thresholds, own_baseline=baseline is None)
+    _check_rate(rec, thresholds)
     check_observable(inp, plant, plant_name, str(rec.source or "the recording"))
     cal = None
     if reference is not None:
@@ -209,6 +225,17 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
         diag.filter_health["out_of_range_samples"] = info["out_of_range_samples"]
     res = residuals(out, thresholds, baseline)
     return out, res, stats, diag, info
+
+
+def _check_rate(rec: Recording, th: Thresholds) -> None:
+    """Refuse a recording sampled at another rate than its thresholds were derived for: sigma and
+    h depend on it (measured: the 1 kHz thresholds raise 12 % false alarms at 500 Hz)."""
+    if abs(rec.dt / th.sample_dt_s - 1.0) > DT_TOLERANCE:
+        rate = 1 / rec.dt
+        raise UserError(
+            f"{rec.source or 'recording'}: 't': sampled at {rate:.4g} Hz, but the thresholds were derived for "
+            f"{1 / th.sample_dt_s:.4g} Hz ({th.source}); derive thresholds for this rate with "
+            f"`samfdi fdi thresholds --sample-rate {rate:.4g} --out DIR` and pass --thresholds DIR/thresholds.toml")
 
 
 def _check_duration(rec: Recording, th: Thresholds, own_baseline: bool) -> None:

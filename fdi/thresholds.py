@@ -41,7 +41,9 @@ from .detect import HYPOTHESES, PARAMS, REGIMES, Thresholds, held, own_baseline,
 from .synth import input_signal, simulate_runs
 from .ukf import preset, run_filter
 
-DURATION, DT, ONSET = 4.0, 1e-3, 1.5
+#: s: the studies simulate at SIM_DT and filter what a logger sampling every Thresholds.sample_dt_s
+#: (a multiple of SIM_DT) would have recorded
+DURATION, SIM_DT, ONSET = 4.0, 1e-3, 1.5
 VOTE_ST = 0.5  #: a residual votes for fault f in a regime where ST_f >= this (vote rule "specific")
 #: vote rule "detectable" (default): a residual votes in a regime where the fault's share of it
 #: over the leakage box, sqrt(ST_f Var(Y)), is at least VOTE_SNR healthy spreads sigma (nuisance
@@ -79,18 +81,24 @@ def _experiment(x: float, t: np.ndarray) -> np.ndarray:
                         seed=int(r.integers(1 << 31)), period=r.uniform(2.0, 4.0))
 
 
-def _run_rows(params: np.ndarray, exp: np.ndarray, noise: np.ndarray, faults=None, filter_name="shipped"):
-    """Simulate and filter one run per row; deterministic given the factor values."""
-    T = int(round(DURATION / DT)) + 1
-    t = np.arange(T) * DT
+def sample_factor(sample_dt_s: float) -> int:
+    """The decimation of the simulated signals (every SIM_DT) to a logger's sampling step."""
+    return int(round(sample_dt_s / SIM_DT))
+
+
+def _run_rows(params: np.ndarray, exp: np.ndarray, noise: np.ndarray, th: Thresholds, faults=None):
+    """Simulate and filter one run per row, sampled every th.sample_dt_s, with th's filter;
+    deterministic given the factor values."""
+    T = int(round(DURATION / SIM_DT)) + 1
+    t = np.arange(T) * SIM_DT
     u = np.stack([_experiment(x, t) for x in exp])
     nominal = np.tile(_NOMINAL, (len(params), 1))
-    runs = simulate_runs(params, u, DT, faults=faults, nominal=nominal, pressure_noise=0.0)
+    runs = simulate_runs(params, u, SIM_DT, faults=faults, nominal=nominal, pressure_noise=0.0)
     for i, x in enumerate(noise):
         r = np.random.default_rng(int(x * 2**31) + 17)
         runs.inp.pA[i] += 20e3 * r.standard_normal(T)
         runs.inp.pB[i] += 20e3 * r.standard_normal(T)
-    return run_filter(runs.inp, preset(filter_name))
+    return run_filter(runs.inp.decimated(sample_factor(th.sample_dt_s)), preset(th.filter))
 
 
 _NOMINAL = None
@@ -104,15 +112,15 @@ def _dev(out, th: Thresholds):
     base, ready = own_baseline(out, th, hidden)
     dev = np.stack([out.mean[:, :, j] - base[:, i:i + 1] for i, j in enumerate(PARAMS.values())], axis=1)
     sd = np.stack([out.std[:, :, j] for j in PARAMS.values()], axis=1)
-    reg = regimes(out.u, DT, th.band_V, th.transient_s)
+    reg = regimes(out.u, out.inp.dt, th.band_V, th.transient_s)
     return dev, sd, reg, hidden, ready
 
 
-def _regime_stat(dev, reg, hidden, ready, after: float, how: str) -> np.ndarray:
+def _regime_stat(dev, reg, hidden, ready, after: float, how: str, dt: float) -> np.ndarray:
     """(n, 4 params x 5 regimes): mean or RMS of dev per regime after time `after`, over the
-    samples the change test scores (``ready`` and not ``hidden``, both (n, 4, T))."""
+    samples (every dt [s]) the change test scores (``ready`` and not ``hidden``, both (n, 4, T))."""
     n, npar, T = dev.shape
-    k0 = int(round(after / DT))
+    k0 = int(round(after / dt))
     Y = np.zeros((n, npar, len(REGIMES)))
     for g in range(len(REGIMES)):
         for i in range(npar):
@@ -134,14 +142,14 @@ def output_names() -> list[str]:
 def _leak_model(X: np.ndarray, th: Thresholds) -> np.ndarray:
     """Leakage GSA model: X columns K_int, K_extA, K_extB, offset, experiment, noise."""
     n = len(X)
-    T = int(round(DURATION / DT)) + 1
-    t = np.arange(T) * DT
+    T = int(round(DURATION / SIM_DT)) + 1
+    t = np.arange(T) * SIM_DT
     params = np.tile(_NOMINAL, (n, 1))
     faults = {name: np.where(t[None, :] >= ONSET, X[:, [i]], 0.0)
               for i, name in enumerate(("K_int", "K_extA", "K_extB", "offset"))}
-    out = _run_rows(params, X[:, 4], X[:, 5], faults, th.filter)
+    out = _run_rows(params, X[:, 4], X[:, 5], th, faults)
     dev, _, reg, hidden, ready = _dev(out, th)
-    return _regime_stat(dev, reg, hidden, ready, ONSET + 0.2, "mean")
+    return _regime_stat(dev, reg, hidden, ready, ONSET + 0.2, "mean", th.sample_dt_s)
 
 
 def _nuisance_params(X: np.ndarray) -> np.ndarray:
@@ -158,9 +166,9 @@ def _nuisance_params(X: np.ndarray) -> np.ndarray:
 
 
 def _nuisance_model(X: np.ndarray, th: Thresholds):
-    out = _run_rows(_nuisance_params(X), X[:, -2], X[:, -1], filter_name=th.filter)
+    out = _run_rows(_nuisance_params(X), X[:, -2], X[:, -1], th)
     dev, sd, reg, hidden, ready = _dev(out, th)
-    return (_regime_stat(dev, reg, hidden, ready, th.warmup_s + th.baseline_s, "rms"),
+    return (_regime_stat(dev, reg, hidden, ready, th.warmup_s + th.baseline_s, "rms", th.sample_dt_s),
             (dev, sd, reg, hidden, ready, _glr_maxima(out, th)))
 
 
@@ -171,7 +179,7 @@ def _glr_maxima(out, th: Thresholds):
         return None
     from .glr import glr_statistics
 
-    g = glr_statistics(out, None, int(round((th.warmup_s + th.baseline_s + th.glr_start_s) / DT)),
+    g = glr_statistics(out, None, int(round((th.warmup_s + th.baseline_s + th.glr_start_s) / out.inp.dt)),
                        window_s=th.glr_window_s)
     return np.stack([v.max(axis=1) for v in g.values()], axis=1)
 
@@ -243,7 +251,7 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
                        workers: int = 1, fa_level: float = FA_LEVEL, drift: float = 1.0,
                        filter: str = "shipped", detector: str = "cusum", glr_start_s: float = 0.0,
                        glr_window_s: float = 0.5, vote_rule: str = "detectable",
-                       progress: bool = False) -> tuple[Thresholds, dict]:
+                       progress: bool = False, sample_dt_s: float = SIM_DT) -> tuple[Thresholds, dict]:
     """Run both studies and derive the thresholds. Returns (thresholds, report). ``vote_rule``
     (:data:`VOTE_RULES`): "detectable" (the default: a residual votes for f where f's share of
     it over the leakage box is at least VOTE_SNR healthy spreads; for the "likelihood"
@@ -262,8 +270,10 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
 
     _init(plant.vector())
     preset(filter)  # a known filter name
+    if sample_factor(sample_dt_s) < 1 or abs(sample_factor(sample_dt_s) * SIM_DT - sample_dt_s) > 1e-9 * sample_dt_s:
+        raise ValueError(f"sample_dt_s: {sample_dt_s!r} s is not a whole multiple of the studies' {SIM_DT:g} s step")
     th0 = replace(Thresholds(), drift=drift, filter=filter, detector=detector, glr_start_s=glr_start_s,
-                  glr_window_s=glr_window_s)
+                  glr_window_s=glr_window_s, sample_dt_s=sample_factor(sample_dt_s) * SIM_DT)
     lp, npb = _problems()
     names = output_names()
     with warnings.catch_warnings():
@@ -332,11 +342,13 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     q = 1.0 - fa_level / len(maxima)
     h = {k: float(max(_gumbel_quantile(v, q), np.max(v) * 1.05, H_FLOOR)) for k, v in maxima.items()}
     th = replace(th1, h=h, false_alarm_level=fa_level, run_length_s=DURATION,
-                 nuisance_sd={p: float(np.sqrt(np.mean(dev[:, i, int(0.5 / DT):] ** 2))) for i, p in enumerate(PARAMS)},
+                 nuisance_sd={p: float(np.sqrt(np.mean(dev[:, i, int(0.5 / th1.sample_dt_s):] ** 2)))
+                              for i, p in enumerate(PARAMS)},
                  source=(f"samfdi fdi thresholds: leakage GSA N={N_leak} ({d_leak.n_runs} runs), nuisance GSA "
                          f"N={N_nuisance} ({d_nui.n_runs} runs), seed {seed}"
                          + ("" if filter == "shipped" else f", filter {filter}")
-                         + ("" if vote_rule == "detectable" else f", votes {vote_rule}")))
+                         + ("" if vote_rule == "detectable" else f", votes {vote_rule}")
+                         + ("" if th1.sample_dt_s == SIM_DT else f", sampled at {1 / th1.sample_dt_s:g} Hz")))
     if detector == "glr":
         from .glr import glr_threshold
         from .isolate import FAULTS
@@ -363,14 +375,14 @@ def _healthy_statistics(dev, sd, reg, hidden, ready, th: Thresholds) -> dict:
     (n, T), held and armed samples (n, 4, T), scored as fdi.detect.statistics scores them."""
     from .detect import cusum
 
-    warm = int(round(th.warmup_s / DT))
+    warm = int(round(th.warmup_s / th.sample_dt_s))
     out = {}
     for h, (_, sign) in HYPOTHESES.items():
         p = h.rstrip("+-")
         i = list(PARAMS).index(p)
         sig = np.asarray(th.sigma[p])[reg]
         r = np.where(ready[:, i], sign * dev[:, i] / np.sqrt(sd[:, i] ** 2 + sig**2), 0.0)
-        out[h] = cusum(r, th.drift, DT, warm, np.asarray(th.votes[p], dtype=bool)[reg] & ~hidden[:, i])
+        out[h] = cusum(r, th.drift, th.sample_dt_s, warm, np.asarray(th.votes[p], dtype=bool)[reg] & ~hidden[:, i])
     return out
 
 

@@ -42,6 +42,7 @@ def test_threshold_and_verdicts():
     healthy = np.zeros((100, 5))
     healthy[:, 2] = np.arange(100.0)  # the best fault over runs: 0..99 nats
     assert bound.threshold(healthy, 0.01) == pytest.approx(np.quantile(np.arange(100.0), 0.99))
+    assert bound.threshold(-healthy, 0.01) == pytest.approx(np.log(100.0))  # never below ln(1 / level)
     ev = np.array([[0, 1, 50, 40, 0], [0, 1, 50, 48, 0], [0, 1, 20, 0, 0.0]])
     det, iso = bound.verdicts(ev, "K_extA", 30.0, 5.0)
     np.testing.assert_array_equal(det, [True, True, False])
@@ -69,7 +70,9 @@ def test_tune_reports_the_bound_next_to_our_detector(tmp_path):
                  max=np.zeros((n, H, 3)), m_L=np.array([100., 300, 600, 700]),
                  k_onset=np.full(n, 1500), evidence=ev)
     m = tune.analyse(tmp_path, jobs, th, tag)
-    assert m["bound"]["threshold_nats"] == pytest.approx(np.quantile([1, 2, 3, 4.0], 1 - th.false_alarm_level))
+    # four healthy runs: their 99 % quantile (3.97 nats) is below the floor ln(1 / 0.01) = 4.6 nats
+    assert m["bound"]["threshold_nats"] == pytest.approx(np.log(1 / th.false_alarm_level))
+    assert "**Rough:**" in (tmp_path / "metrics.md").read_text()
     row = next(r for r in m["rows"] if r["fault"] == "K_int" and r["size"] == 0.25)
     assert (row["bound_detectable"], row["bound_isolable"]) == (0.75, 0.5)
     assert "What the data carry" in (tmp_path / "metrics.md").read_text()

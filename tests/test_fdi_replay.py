@@ -55,15 +55,38 @@ def test_known_leak_detected_isolated_and_sized(leak_csv, tmp_path, capsys):
     assert main(["fdi", "replay", str(leak_csv), "--out", str(out), "--force"]) == 0
 
 
-def test_500_hz_recording_is_accepted_and_diagnosed(leak_csv, tmp_path):
-    """2 ms, the largest step the forward-Euler model takes, as a 500 Hz clock writes it (its
-    mean step is not exactly 2e-3 in floating point): the 1 L/min leak is still found."""
+def test_sampling_rate_must_match_the_thresholds(leak_csv, tmp_path, capsys):
+    """sigma and h depend on the sampling rate (the 1 kHz thresholds give 12 % false alarms at
+    500 Hz), so a 500 Hz recording is refused with the shipped 1 kHz thresholds and the command
+    that makes thresholds for it; with thresholds for 500 Hz it is filtered with two 1 ms model
+    steps per sample and the 1 L/min leak is found and sized."""
+    from dataclasses import replace
+
     from sam import read_recording
     import fdi
+    from fdi.ukf import model_substeps
     r = read_recording(leak_csv)
-    half = Recording(r.t[::2], {k: v[::2] for k, v in r.signals.items()})
-    d = fdi.replay_recording(half, load_plant(), tmp_path / "h", figure=False)
+    half = Recording(r.t[::2], {k: v[::2] for k, v in r.signals.items()}, source="half.csv")
+    write_recording(tmp_path / "half.csv", half)
+    assert main(["fdi", "replay", str(tmp_path / "half.csv"), "--out", str(tmp_path / "o")]) == 2
+    assert "samfdi fdi thresholds --sample-rate 500" in capsys.readouterr().err
+    assert [model_substeps(dt) for dt in (1e-3, 2e-3, 2e-3 * (1 + 1e-12), 5e-3, 0.5e-3)] == [1, 2, 2, 5, 1]
+    th500 = replace(Thresholds.shipped(), sample_dt_s=2e-3)
+    d = fdi.replay_recording(half, load_plant(), tmp_path / "h", thresholds=th500, figure=False)
     assert d.isolated == ["K_extA"] and d.size["K_extA"]["value"] == pytest.approx(1.0, abs=0.15)
+
+
+def test_threshold_studies_sample_like_the_logger():
+    """The studies simulate at 1 ms and filter what a logger sampling every 2 ms records."""
+    from dataclasses import replace
+
+    from fdi import thresholds as T
+    T._init(load_plant().vector())
+    th = replace(Thresholds.shipped(), sample_dt_s=2e-3)
+    out = T._run_rows(np.tile(load_plant().vector(), (2, 1)), np.array([0.1, 0.5]), np.array([0.2, 0.3]), th)
+    assert out.inp.dt == pytest.approx(2e-3) and out.mean.shape[1] == int(round(T.DURATION / 2e-3)) + 1
+    with pytest.raises(ValueError, match="whole multiple"):
+        T.compute_thresholds(load_plant(), N_leak=4, N_nuisance=4, sample_dt_s=1.5e-3)
 
 
 def test_replay_never_reads_truth(leak_csv, tmp_path):
@@ -109,13 +132,14 @@ def test_bad_input_messages(tmp_path, capsys):
     write_recording(path2, _recording(None, T=2001))
     assert main(["fdi", "replay", str(path2), "--plant", str(plant), "--out", str(tmp_path / "u")]) == 2
     assert "unobservable" in capsys.readouterr().err
-    # coarse sampling
+    # coarse sampling: 200 Hz needs thresholds for 200 Hz; 50 Hz is refused outright
     rec3 = _recording(None, T=2001)
-    coarse = Recording(rec3.t[::5], {k: v[::5] for k, v in rec3.signals.items()})
-    path3 = tmp_path / "coarse.csv"
-    write_recording(path3, coarse)
-    assert main(["fdi", "replay", str(path3), "--out", str(tmp_path / "c")]) == 2
-    assert "sampling step" in capsys.readouterr().err
+    for k, expect in ((5, "--sample-rate 200"), (20, "100 Hz or faster")):
+        coarse = Recording(rec3.t[::k], {c: v[::k] for c, v in rec3.signals.items()})
+        path3 = tmp_path / f"coarse{k}.csv"
+        write_recording(path3, coarse)
+        assert main(["fdi", "replay", str(path3), "--out", str(tmp_path / "c")]) == 2
+        assert expect in capsys.readouterr().err
     # thresholds file: a mistyped key and an unknown method are named, not silently ignored
     shipped = (Path(__file__).resolve().parents[1] / "scenarios" / "faults" / "thresholds.toml").read_text()
     for text, expect in ((shipped.replace("false_isolation_level", "false_isolaton_level"),
@@ -148,6 +172,9 @@ def test_replay_refuses_what_it_cannot_diagnose(tmp_path, capsys):
         err = capsys.readouterr().err
         assert expect in err and "Traceback" not in err, err
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+    for rate in ("300", "50"):  # not a whole number of 1 ms steps; below 100 Hz
+        assert main(["fdi", "thresholds", "--sample-rate", rate, "--out", str(tmp_path / "th")]) == 2
+        assert "--sample-rate" in capsys.readouterr().err
     mine = tmp_path / "mine"
     mine.mkdir()
     for cmd, name in ((["thresholds"], "thresholds.md"), (["signatures"], "signatures.md")):
@@ -168,7 +195,7 @@ def test_plant_that_does_not_fit_is_flagged(tmp_path, capsys):
     assert main(["fdi", "replay", str(ok), "--out", str(tmp_path / "nominal")]) == 0
     assert "warning" not in capsys.readouterr().out
     assert main(["fdi", "replay", str(ok), "--plant", str(plant), "--out", str(tmp_path / "o")]) == 0
-    assert "warning: the model does not fit this recording" in capsys.readouterr().out
+    assert "the model does not fit this recording" in capsys.readouterr().out
     d = json.loads((tmp_path / "o" / "diagnosis.json").read_text())
     assert "does not describe this machine" in d["note"]
     assert "model_fit_warning" in d["filter_health"]

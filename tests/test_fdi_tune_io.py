@@ -268,3 +268,15 @@ def test_help_states_the_workers_and_runs_rules():
     for n in (5, 10, 24, 25, 26, 230):
         per_case = sum(j[3] for j in tune._jobs(n) if j[0] == "K_int_0.25")
         assert per_case == max(5, n // 5) and sum(j[3] for j in tune._jobs(n) if j[0] == "healthy") == n
+
+
+def test_smallest_size_needs_every_larger_size_and_runs():
+    """A size is met only when it and every larger tested size reach 95 %; a load third with no
+    runs of a size (rate NaN) is not a pass."""
+    from fdi.tune import _smallest
+    rows = [{"size": s, "r": r} for s, r in ((0.1, 1.0), (0.25, 0.96), (0.5, 0.97), (1.0, 0.99))]
+    assert _smallest(rows, lambda r: r["r"]) == 0.1
+    rows[2]["r"] = 0.9  # 0.5 fails: 0.1 and 0.25 passing below it are lucky draws
+    assert _smallest(rows, lambda r: r["r"]) == 1.0
+    rows[3]["r"] = float("nan")  # no 1 L/min runs in this third
+    assert _smallest(rows, lambda r: r["r"]) is None
