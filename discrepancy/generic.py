@@ -296,7 +296,7 @@ def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: 
     estimator = estimator or ESTIMATOR
     note = ""
     if estimator == "ukf" and data.n_sub > 1:
-        # the filter steps the model at the recording's own step, which is only stable up to 1 ms
+        # the UKF route (its disturbance-flow states and score) was built and validated at 1 kHz only
         estimator, note = "score_test", "sampled slower than 1 kHz: the UKF route needs 1 kHz, score test used"
     p_S = final.params[P.p_S]
     cands = _candidates(features(data, p_S))

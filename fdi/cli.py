@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from sam.errors import UserError, output_folder
@@ -25,7 +26,8 @@ def add_commands(subparsers) -> None:
                    "estimates over its first unpinned second; costs false alarms when the loads differ, docs/fdi.md)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
     r.add_argument("--drop-out-of-range", action="store_true",
-                   help="treat pressure samples outside 0-25 MPa as missing instead of refusing the file")
+                   help="treat pressure samples outside 0-25 MPa and position samples outside the plant's "
+                   "stroke as missing instead of refusing the file")
     r.set_defaults(func=_replay)
 
     s = sub.add_parser("signatures", help="fault signature tables (CSV, Markdown, heat map)")
@@ -105,13 +107,15 @@ def _load_thresholds(path):
 
 
 def _thresholds(args) -> int:
-    from .replay import MIN_SAMPLE_RATE_HZ
+    from .replay import DT_TOLERANCE, MIN_SAMPLE_RATE_HZ
     from .thresholds import OUTPUT_FILES, compute_thresholds, describe, write_thresholds
 
     if args.workers < 1:
         raise UserError(f"--workers: must be >= 1, got {args.workers}")
-    k = 1000.0 / args.sample_rate if args.sample_rate > 0 else float("inf")
-    if not (abs(k - round(k)) < 1e-3 * k and 1 <= round(k) <= 1000 / MIN_SAMPLE_RATE_HZ):  # 333.33 Hz: 3 ms
+    k = 1000.0 / args.sample_rate if math.isfinite(args.sample_rate) and args.sample_rate > 0 else float("inf")
+    # within 1 % of a whole number of ms, as replay matches a recording's rate: 333.3 Hz is 3 ms
+    if not (math.isfinite(k) and abs(k / max(1, round(k)) - 1.0) <= DT_TOLERANCE
+            and 1 <= round(k) <= 1000 / MIN_SAMPLE_RATE_HZ):
         raise UserError(f"--sample-rate: {args.sample_rate:g} Hz; the studies simulate at 1 kHz and can sample "
                         f"every 1, 2, ..., {int(1000 / MIN_SAMPLE_RATE_HZ)} ms: 1000, 500, 333.33, 250, 200, ..., "
                         f"{MIN_SAMPLE_RATE_HZ:g} Hz")
@@ -156,6 +160,9 @@ def _replay(args) -> int:
     if cal:
         print("calibrated from the reference: " + ", ".join(
             f"{k} x{v['factor']:.4f} (+-{100 * v['relative_sd']:.2f} %)" for k, v in cal.items()))
+    if diag.filter_health.get("decimated_by"):
+        print(f"kept every {diag.filter_health['decimated_by']}th sample: the thresholds are for "
+              f"{1 / th.sample_dt_s:g} Hz")
     if diag.filter_health.get("nan_samples"):
         print(f"predicted through {diag.filter_health['nan_samples']} sample(s) with missing measurements")
     if diag.filter_health.get("u_gaps_held"):

@@ -157,6 +157,9 @@ class Thresholds:
         for key, allowed in CHOICES.items():
             if key in data and data[key] not in allowed:
                 raise ValueError(f"{key!r} = {data[key]!r} is not one of {', '.join(map(repr, allowed))}")
+        dt = data.get("sample_dt_s", 1e-3)
+        if not (isinstance(dt, (int, float)) and 0 < dt < 1):
+            raise ValueError(f"'sample_dt_s' = {dt!r} is not a sampling step in seconds (0 < dt < 1)")
         return cls(**data)
 
     @classmethod
@@ -481,8 +484,10 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
     health["tested_s"] = {p: float(s) for p, s in zip(PARAMS, tested)}
     untested = [p for p, s in zip(PARAMS, tested) if s < MIN_TESTED_S]
     if untested and status == "healthy":
-        note = (f"healthy as far as tested: {', '.join(untested)} tested for less than {MIN_TESTED_S:g} s "
-                "(the pressures pinned at supply and tank, or the recording too short after the baseline)")
+        untested_note = (f"healthy as far as tested: {', '.join(untested)} tested for less than {MIN_TESTED_S:g} s "
+                         "(the pressures pinned at supply and tank, the recording too short after the baseline, "
+                         "or never in a regime where the thresholds let that residual vote)")
+        note = f"{untested_note}; {note}" if note else untested_note
     return Diagnosis(
         status=status, isolated=isolated, detection_time_s=(alarms[names[0]] if names else nis_time),
         alarms=alarms, size=size, confidence=conf, model_fit_alarm_s=nis_time, filter_health=health,

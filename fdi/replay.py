@@ -48,9 +48,6 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
     if rec.n < 10:
         raise UserError(f"{name}: only {rec.n} samples; the filter needs at least 10")
     dt = rec.dt
-    if not (dt <= (1.0 + DT_TOLERANCE) / MIN_SAMPLE_RATE_HZ):
-        raise UserError(f"{name}: 't': sampled every {dt * 1e3:.3g} ms ({1 / dt:.4g} Hz); the filter needs "
-                        f"{MIN_SAMPLE_RATE_HZ:g} Hz or faster to follow the chamber pressures")
     info = {"samples": rec.n, "dt_s": dt, "position": "x" if "x" in rec.signals else "theta",
             "supply_pressure_measured": "pS" in rec.signals, "out_of_range_samples": 0,
             "ignored_optional_columns": sorted(set(rec.signals) & {"v", "xs"})}
@@ -67,6 +64,9 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
     for ch in ("pA", "pB", column):
         if not np.isfinite(sig[ch]).any():  # --drop-out-of-range left nothing of it
             raise UserError(f"{name}: '{ch}': every sample is outside its valid range; nothing is left to filter")
+    if "pS" in sig and not np.isfinite(sig["pS"]).any():  # the plant's supply pressure, as without the column
+        del sig["pS"]
+        info["supply_pressure_measured"] = False
     u = sig["u"]
     if np.isnan(u).any():  # the input drives the model: hold the last value through a gap
         idx = np.where(np.isfinite(u), np.arange(len(u)), 0)
@@ -203,17 +203,20 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
     ``plant_name``: how messages name the plant (its file)."""
     thresholds = Thresholds.shipped() if thresholds is None else thresholds
     cfg = preset(thresholds.filter) if cfg is None else cfg  # the filter the thresholds were made for
-    rec = rec.measured()  # never the true_* columns
+    rec, k = at_thresholds_rate(rec.measured(), thresholds)  # never the true_* columns
     inp, info = filter_input(rec, plant, drop_out_of_range=drop_out_of_range)
+    if k > 1:
+        info["decimated_by"] = k
     _check_duration(rec, thresholds, own_baseline=baseline is None)
-    _check_rate(rec, thresholds)
     check_observable(inp, plant, plant_name, str(rec.source or "the recording"))
     cal = None
     if reference is not None:
-        cal = learn_reference(reference, plant, cfg, drop_out_of_range=drop_out_of_range)
+        cal = learn_reference(at_thresholds_rate(reference, thresholds)[0], plant, cfg,
+                              drop_out_of_range=drop_out_of_range)
         info["calibrated_from_reference"] = cal.to_json()
     if isinstance(baseline, Recording):
-        baseline = reference_baseline(baseline, plant, thresholds, cfg, cal, drop_out_of_range=drop_out_of_range)
+        baseline = reference_baseline(at_thresholds_rate(baseline, thresholds)[0], plant, thresholds, cfg, cal,
+                                      drop_out_of_range=drop_out_of_range)
     if cal is not None:
         inp, cfg = calibration.apply(inp, cfg, cal)
     out = run_filter(inp, cfg)
@@ -227,15 +230,29 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
     return out, res, stats, diag, info
 
 
-def _check_rate(rec: Recording, th: Thresholds) -> None:
-    """Refuse a recording sampled at another rate than its thresholds were derived for: sigma and
-    h depend on it (measured: the 1 kHz thresholds raise 12 % false alarms at 500 Hz)."""
-    if abs(rec.dt / th.sample_dt_s - 1.0) > DT_TOLERANCE:
-        rate = 1 / rec.dt
-        raise UserError(
-            f"{rec.source or 'recording'}: 't': sampled at {rate:.4g} Hz, but the thresholds were derived for "
-            f"{1 / th.sample_dt_s:.4g} Hz ({th.source}); derive thresholds for this rate with "
-            f"`samfdi fdi thresholds --sample-rate {rate:.4g} --out DIR` and pass --thresholds DIR/thresholds.toml")
+def at_thresholds_rate(rec: Recording, th: Thresholds) -> tuple[Recording, int]:
+    """The recording at the rate its thresholds were derived for (sigma and h depend on it:
+    measured, the 1 kHz thresholds raise 12 % false alarms at 500 Hz), and the decimation k:
+    as it is (k = 1) within DT_TOLERANCE of that rate, every k-th sample when it is a whole k
+    times faster; otherwise a UserError that names what to do."""
+    if not (rec.dt <= (1.0 + DT_TOLERANCE) / MIN_SAMPLE_RATE_HZ):
+        raise UserError(f"{rec.source or 'recording'}: 't': sampled every {rec.dt * 1e3:.3g} ms ({1 / rec.dt:.4g} Hz); "
+                        f"the filter needs {MIN_SAMPLE_RATE_HZ:g} Hz or faster to follow the chamber pressures")
+    ratio = th.sample_dt_s / rec.dt
+    k = max(1, round(ratio))
+    if abs(ratio / k - 1.0) <= DT_TOLERANCE:
+        if k == 1:
+            return rec, 1
+        return Recording(rec.t[::k], {c: v[::k] for c, v in rec.signals.items()}, {}, rec.metadata, rec.source), k
+    rate, ms = 1.0 / rec.dt, rec.dt * 1e3
+    supported = 1000.0 / max(1, round(ms))  # the studies sample every whole ms
+    if rate < 1000.0 and abs(supported / rate - 1.0) <= DT_TOLERANCE and supported >= MIN_SAMPLE_RATE_HZ:
+        todo = (f"derive thresholds for it with `samfdi fdi thresholds --sample-rate {supported:.5g} --out DIR` "
+                "and pass --thresholds DIR/thresholds.toml")
+    else:
+        todo = "resample it to 1000 Hz, or to 1000 / k Hz (k = 2 ... 10) and derive thresholds for that rate"
+    raise UserError(f"{rec.source or 'recording'}: 't': sampled at {rate:.4g} Hz, but the thresholds were derived "
+                    f"for {1 / th.sample_dt_s:.4g} Hz ({th.source}); {todo}")
 
 
 def _check_duration(rec: Recording, th: Thresholds, own_baseline: bool) -> None:
@@ -252,11 +269,12 @@ def replay_recording(rec: Recording, plant: Plant, out_dir, *, force: bool = Fal
                      thresholds: Thresholds | None = None, drop_out_of_range: bool = False,
                      figure: bool = True, baseline=None, reference=None, plant_name: str = "plant") -> Diagnosis:
     """Replay and write estimates.csv, residuals.csv, diagnosis.json and replay.png into out_dir."""
-    out_dir = output_folder(out_dir, OUTPUT_FILES, force)
+    out_dir = output_folder(out_dir, OUTPUT_FILES, force, create=False)
     thresholds = Thresholds.shipped() if thresholds is None else thresholds
     out, res, stats, diag, info = replay(rec, plant, thresholds=thresholds, drop_out_of_range=drop_out_of_range,
                                          baseline=baseline, reference=reference, plant_name=plant_name)
-    t = rec.t
+    output_folder(out_dir)
+    t = out.t + rec.t[0]  # the samples filtered (every k-th of a faster recording)
     _write_estimates(out_dir / "estimates.csv", t, out)
     _write_residuals(out_dir / "residuals.csv", t, res, stats, thresholds)
     (out_dir / "diagnosis.json").write_text(diag.to_json() + "\n")

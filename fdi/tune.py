@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from sam import Plant, UserError
+from sam.errors import output_folder
 
 from . import bound as onset_bound
 from . import calibration, isolate
@@ -204,7 +205,7 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
     jobs = _jobs(n_runs)
     tag = _tag(reference, bound)
     want = manifest(plant, th, n_runs)
-    _make_folder(out_dir)
+    output_folder(out_dir)  # not chunks/ yet: a refused folder keeps its contents as they were
     _check_folder(out_dir, want, th, force)
     todo = _todo(chunk_dir, jobs, tag)  # before the manifest is written: it may refuse an older folder
     client = _connect(scheduler) if scheduler else None
@@ -281,16 +282,6 @@ def _differences(old: dict, new: dict) -> list:
     if old.get("layout") != new["layout"]:
         out.append(f"chunk layout {old.get('layout')!r} there (another samfdi version), {new['layout']!r} now")
     return out
-
-
-def _make_folder(out_dir: Path) -> None:
-    """Create ``out_dir`` (not chunks/ yet: a refused folder keeps its contents as they were)."""
-    if out_dir.exists() and not out_dir.is_dir():
-        raise UserError(f"{out_dir}: --out: is a file, not a folder")
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"{out_dir}: --out: cannot create the folder ({exc.strerror or exc})") from None
 
 
 def _check_folder(out_dir: Path, want: dict, th: Thresholds, force: bool) -> None:

@@ -34,18 +34,24 @@ def did_you_mean(key: str, known) -> str:
     return f" (did you mean '{match[0]}'?)" if match else ""
 
 
-def output_folder(path: str | Path, files: tuple[str, ...] = (), force: bool = False) -> Path:
-    """The folder ``path``, created if needed, before any work is done: a UserError if it is a
-    file, lies under a file, cannot be created, or already holds one of ``files`` (unless
-    ``force``: the user's files are never replaced without being asked)."""
+def output_folder(path: str | Path, files: tuple[str, ...] = (), force: bool = False, create: bool = True) -> Path:
+    """The folder ``path``, checked before any work is done: a UserError if it is a file, lies
+    under a file, cannot be created, or already holds one of ``files`` (unless ``force``: the
+    user's files are never replaced without being asked). ``create``: also create it now (else
+    call again with ``create=True`` once there is something to write, so that a refused run
+    leaves no empty folder behind)."""
     out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"{out}: --out: exists and is not a folder")
+    existing_parent = out
+    while not existing_parent.exists() and existing_parent != existing_parent.parent:
+        existing_parent = existing_parent.parent
+    if not existing_parent.is_dir():
+        raise UserError(f"{out}: --out: {existing_parent} is a file, not a folder")
     existing = [f for f in files if (out / f).exists()]
     if existing and not force:
         raise UserError(f"{out}: already holds {', '.join(existing)}; use --force to overwrite")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"{out}: --out: cannot create the folder ({e.strerror or e})") from None
+    if create:
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise UserError(f"{out}: --out: cannot create the folder ({e.strerror or e})") from None
     return out

@@ -70,10 +70,43 @@ def test_sampling_rate_must_match_the_thresholds(leak_csv, tmp_path, capsys):
     write_recording(tmp_path / "half.csv", half)
     assert main(["fdi", "replay", str(tmp_path / "half.csv"), "--out", str(tmp_path / "o")]) == 2
     assert "samfdi fdi thresholds --sample-rate 500" in capsys.readouterr().err
-    assert [model_substeps(dt) for dt in (1e-3, 2e-3, 2e-3 * (1 + 1e-12), 5e-3, 0.5e-3)] == [1, 2, 2, 5, 1]
+    assert [model_substeps(dt) for dt in (1e-3, 1.0005e-3, 2e-3, 2.008e-3, 5e-3, 0.5e-3)] == [1, 1, 2, 2, 5, 1]
     th500 = replace(Thresholds.shipped(), sample_dt_s=2e-3)
     d = fdi.replay_recording(half, load_plant(), tmp_path / "h", thresholds=th500, figure=False)
     assert d.isolated == ["K_extA"] and d.size["K_extA"]["value"] == pytest.approx(1.0, abs=0.15)
+
+
+def test_faster_recording_is_decimated_and_odd_rates_get_a_way_out(leak_csv, tmp_path, capsys):
+    """A 2 kHz recording (the 1 kHz one with midpoints interpolated) is decimated to the
+    thresholds' 1 kHz and diagnosed as the 1 kHz one is; 497 Hz is refused with the supported
+    rate to derive thresholds for (500 Hz), 700 Hz with how to resample; a baseline recording at
+    2 kHz is decimated too; --sample-rate 0 / nan are refused without a traceback."""
+    from sam import read_recording
+    r = read_recording(leak_csv)
+    t2 = np.arange(2 * r.n - 1) * r.dt / 2
+    fast = Recording(t2, {c: np.interp(t2, r.t, v) for c, v in r.signals.items()}, source="fast.csv")
+    write_recording(tmp_path / "fast.csv", fast)
+    assert main(["fdi", "replay", str(tmp_path / "fast.csv"), "--out", str(tmp_path / "f"),
+                 "--baseline", str(tmp_path / "fast.csv")]) == 0
+    assert "kept every 2th sample" in capsys.readouterr().out
+    for rate, expect in ((497.0, "--sample-rate 500 "), (700.0, "resample it")):
+        tr = np.arange(0, 3.0, 1 / rate)
+        odd = Recording(tr, {c: np.interp(tr, r.t, v) for c, v in r.signals.items()})
+        write_recording(tmp_path / f"odd{rate:g}.csv", odd)
+        assert main(["fdi", "replay", str(tmp_path / f"odd{rate:g}.csv"), "--out", str(tmp_path / "o")]) == 2
+        assert expect in capsys.readouterr().err
+    for bad in ("0", "nan", "-5"):
+        assert main(["fdi", "thresholds", "--sample-rate", bad, "--out", str(tmp_path / "th")]) == 2
+        assert "--sample-rate" in capsys.readouterr().err
+
+
+def test_tune_refuses_thresholds_for_another_rate(tmp_path, capsys):
+    from fdi.thresholds import to_toml
+    from dataclasses import replace
+    path = tmp_path / "th500.toml"
+    path.write_text(to_toml(replace(Thresholds.shipped(), sample_dt_s=2e-3)))
+    assert main(["fdi", "tune", "--runs", "5", "--thresholds", str(path), "--out", str(tmp_path / "t")]) == 2
+    assert "1000 Hz only" in capsys.readouterr().err and not (tmp_path / "t").exists()
 
 
 def test_threshold_studies_sample_like_the_logger():
@@ -166,12 +199,12 @@ def test_replay_refuses_what_it_cannot_diagnose(tmp_path, capsys):
     write_recording(ok, _recording(None, T=3001))
     for args, expect in (([str(short)], "only 1 s long; a diagnosis needs at least 2 s"),
                          ([str(neg)], "'theta': 3001 sample(s) outside the plant's stroke"),
-                         ([str(ok), "--out", str(ok / "sub")], "cannot create the folder")):
+                         ([str(ok), "--out", str(ok / "sub")], "ok.csv is a file, not a folder")):
         out = ["--out", str(tmp_path / "o")] if "--out" not in args else []
         assert main(["fdi", "replay", *args, *out]) == 2
         err = capsys.readouterr().err
         assert expect in err and "Traceback" not in err, err
-    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+    assert not (tmp_path / "o").exists()  # a refused replay leaves no empty folder behind
     for rate in ("300", "50"):  # not a whole number of 1 ms steps; below 100 Hz
         assert main(["fdi", "thresholds", "--sample-rate", rate, "--out", str(tmp_path / "th")]) == 2
         assert "--sample-rate" in capsys.readouterr().err
@@ -182,6 +215,34 @@ def test_replay_refuses_what_it_cannot_diagnose(tmp_path, capsys):
         assert main(["fdi", *cmd, "--out", str(mine)]) == 2
         assert "use --force" in capsys.readouterr().err
         assert (mine / name).read_text() == "my notes"
+
+
+def test_untested_parameters_are_named_and_position_can_be_dropped(tmp_path, capsys):
+    """The first 6 s of the healthy 60 s cycle at 800 kg are a stall with the pressures pinned
+    at supply and tank: K_extB and the offset are never tested, and "healthy" says so. A
+    position glitch is refused, or made a missing sample with --drop-out-of-range; a position
+    column left with nothing is refused."""
+    from sam.scenario import load_scenario, run_scenario
+    import fdi
+    rec = run_scenario(load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "faults"
+                                     / "healthy_cycle_60s_800kg.toml"))
+    k = rec.t <= 6.0
+    first = Recording(rec.t[k], {c: v[k] for c, v in rec.signals.items()})
+    d = fdi.replay_recording(first, load_plant(), tmp_path / "s", figure=False)
+    assert d.status == "healthy" and "healthy as far as tested: K_extB, offset" in d.note
+    assert d.filter_health["tested_s"]["K_extB"] == 0.0 and d.filter_health["tested_s"]["K_int"] > 4.0
+    glitch = _recording(None, T=3001)
+    glitch.signals["theta"][1500] = -0.2
+    write_recording(tmp_path / "glitch.csv", glitch)
+    assert main(["fdi", "replay", str(tmp_path / "glitch.csv"), "--out", str(tmp_path / "g")]) == 2
+    assert "'theta': 1 sample(s) outside the plant's stroke" in capsys.readouterr().err
+    assert main(["fdi", "replay", str(tmp_path / "glitch.csv"), "--out", str(tmp_path / "g"),
+                 "--drop-out-of-range"]) == 0
+    assert json.loads((tmp_path / "g" / "diagnosis.json").read_text())["filter_health"]["nan_samples"] == 1
+    glitch.signals["theta"][:] = -0.2
+    write_recording(tmp_path / "all.csv", glitch)
+    assert main(["fdi", "replay", str(tmp_path / "all.csv"), "--out", str(tmp_path / "a"), "--drop-out-of-range"]) == 2
+    assert "nothing is left to filter" in capsys.readouterr().err
 
 
 def test_plant_that_does_not_fit_is_flagged(tmp_path, capsys):
