@@ -967,6 +967,8 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     steps = np.full(B, T, dtype=np.int64) if n_steps is None else np.minimum(np.asarray(n_steps, np.int64), T)
     # the kernel needs the active runs first: order the runs by decreasing length (and back)
     order = slice(None) if n_steps is None else np.argsort(-steps, kind="stable")
+    if not isinstance(order, slice) and np.array_equal(order, np.arange(B)):
+        order = slice(None)  # already in order (e.g. a bank's hypotheses of one run): no copies
     fill = np.empty if n_steps is None else (lambda shape: np.full(shape, np.nan))
     out_z = fill((B, T, n))
     out_sd = fill((B, T, n))
@@ -982,7 +984,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     nis_limit = cfg.nis_factor * m if cfg.nis_factor > 0 else np.inf
     z0 = np.broadcast_to(z0, (B, n))
     P0 = np.broadcast_to(P0, (B, n, n))
-    if held.any() and any(np.any(P0[b][np.ix_(h, ~h)]) for b, h in enumerate(held) if h.any()):
+    if held.any() and np.any((P0 != 0.0) & held[:, :, None] & ~held[:, None, :]):
         raise ValueError("run_filter: a held state has prior covariance with a free one (P0)")
     _run(np.ascontiguousarray(z0[order], dtype=float), np.ascontiguousarray(P0[order], dtype=float), Qd, Rd,
          np.ascontiguousarray(inp.u[order], dtype=float), np.ascontiguousarray(y[order]),
@@ -993,7 +995,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
          freeze_k, freeze_mask, float(cfg.freeze_sd_factor), bool(cfg.symmetrise),
          float(nis_alpha), float(nis_limit), float(cfg.jitter), float(inp.dt), model_substeps(inp.dt),
          out_z, out_sd, out_nu, out_nis, counts, out_ll, steps[order])
-    if n_steps is not None:  # results in the caller's order
+    if not isinstance(order, slice):  # results in the caller's order
         back = np.argsort(order)
         out_z, out_sd, out_nu, out_nis, counts, out_ll = (
             a[back] for a in (out_z, out_sd, out_nu, out_nis, counts, out_ll))
