@@ -205,7 +205,7 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
     jobs = _jobs(n_runs)
     tag = _tag(reference, bound)
     want = manifest(plant, th, n_runs)
-    output_folder(out_dir)  # not chunks/ yet: a refused folder keeps its contents as they were
+    output_folder(out_dir, create=False)  # created by _start: a refused run leaves nothing behind
     _check_folder(out_dir, want, th, force)
     todo = _todo(chunk_dir, jobs, tag)  # before the manifest is written: it may refuse an older folder
     client = _connect(scheduler) if scheduler else None
@@ -335,6 +335,7 @@ def _connect(scheduler: str):
 def _start(out_dir: Path, want: dict, th: Thresholds) -> None:
     """Write the manifest (the first write: an unwritable folder is refused here), chunks/ and
     thresholds_used.json."""
+    output_folder(out_dir)
     try:
         _write_atomic(out_dir / MANIFEST, (json.dumps(want, indent=2) + "\n").encode())
         (out_dir / "chunks").mkdir(exist_ok=True)
