@@ -161,7 +161,7 @@ def _replay(args) -> int:
         print("calibrated from the reference: " + ", ".join(
             f"{k} x{v['factor']:.4f} (+-{100 * v['relative_sd']:.2f} %)" for k, v in cal.items()))
     if diag.filter_health.get("decimated_by"):
-        print(f"kept every {diag.filter_health['decimated_by']}th sample: the thresholds are for "
+        print(f"kept 1 sample in {diag.filter_health['decimated_by']}: the thresholds are for "
               f"{1 / th.sample_dt_s:g} Hz")
     if diag.filter_health.get("nan_samples"):
         print(f"predicted through {diag.filter_health['nan_samples']} sample(s) with missing measurements")
