@@ -62,7 +62,6 @@ def main() -> None:
 def _bench_isolation(plant, runs) -> None:
     """Replay with the likelihood isolation (filter, CUSUM, reference and bank over the record)
     and the tune's work per run (the bank decides within 1 s of the alarm) on alarmed runs."""
-    from fdi import isolate
     from fdi.detect import Thresholds, diagnose, statistics
 
     th = Thresholds.shipped()

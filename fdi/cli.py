@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
@@ -139,7 +138,6 @@ def _thresholds(args) -> int:
 def _replay(args) -> int:
     from sam import read_recording
 
-    from .detect import Thresholds
     from .replay import replay_recording
 
     plant = _plant(args)

@@ -18,10 +18,10 @@ from sam.geometry import joint_angle, piston_position
 
 from . import calibration
 from .detect import (
-    HYPOTHESES, MIN_TESTED_S, PARAMS, Diagnosis, Thresholds, diagnose, held, residuals, statistics,
+    MIN_TESTED_S, PARAMS, Diagnosis, Thresholds, diagnose, held, residuals, statistics,
 )
 from .ukf import (
-    FAULT_STATES, POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
+    POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
     model_substeps, preset, run_filter,
 )
 
