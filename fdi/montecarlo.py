@@ -7,7 +7,7 @@ import numpy as np
 
 from sam import P, Plant
 
-from .synth import input_signal, lpm, profile, simulate_runs
+from .synth import lpm, profile, random_input, simulate_runs
 
 #: Nuisance parameters and their relative half-ranges: Table 1's parameters with the
 #: ranges narrowed to what a calibrated model still leaves uncertain.
@@ -31,12 +31,8 @@ def draw_truth(plant: Plant, n: int, rng: np.random.Generator, nuisance: bool = 
 
 
 def draw_inputs(n: int, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    u = np.empty((n, len(t)))
     kinds = rng.choice(INPUTS, n)
-    for i, kind in enumerate(kinds):
-        u[i] = input_signal(str(kind), t, amplitude=rng.uniform(2.0, 4.0), frequency=rng.uniform(0.25, 0.6),
-                            seed=int(rng.integers(1 << 31)), period=rng.uniform(2.0, 4.0))
-    return u
+    return np.stack([random_input(str(kind), t, rng) for kind in kinds]) if n else np.empty((0, len(t)))
 
 
 def make_batch(plant: Plant, n: int, seed: int, *, fault: str | None = None, size: float = 0.0,

@@ -48,13 +48,17 @@ from .ukf import preset, run_filter
 
 FAULT_SIZES = {"K_int": (0.1, 0.25, 0.5, 1.0), "K_extA": (0.1, 0.25, 0.5, 1.0),
                "K_extB": (0.1, 0.25, 0.5, 1.0), "offset": (0.01, -0.01, 0.02, -0.02, 0.05)}
+#: s: fault runs last DURATION; healthy runs last the thresholds' run_length_s (the length their
+#: false-alarm level is stated for: 20 s since session 11; a recording's healthy change residual
+#: carries an offset that lasts, so a longer run is more likely to false-alarm)
 DURATION, CHUNK, DT = 4.0, 25, 1e-3
 ONSET_MIN, ONSET_MAX = 1.5, 2.5  #: fault onset range [s]; + the 1 s scored ends by 3.5 s < DURATION
 ONSET = ONSET_MIN  #: the nominal onset of healthy runs (their windows are not scored)
+REFERENCE_S = 4.0  #: s, length of the healthy reference recording of ``--reference``
 #: chunk file tag: "r" = random onset, per-run k_onset saved (session 8); "s" = the same with the
 #: tests held where pinned pressures hide them and the session-9 thresholds (an older folder's
-#: chunks are not mixed in)
-CHUNK_VERSION = "s"
+#: chunks are not mixed in); "t": healthy runs of the thresholds' run_length_s (session 11)
+CHUNK_VERSION = "t"
 LOAD_BINS = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))
 HYP = tuple(HYPOTHESES)
 MANIFEST = "tune.json"  #: the settings the folder's chunks were made with (:func:`manifest`)
@@ -84,10 +88,10 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, reference: bo
     of :func:`fdi.bound.onset_evidence` per run (healthy runs: at the onsets a fault run of
     the chunk would have)."""
     onset = ONSET if fault is None else draw_onsets(n, seed)
-    runs = make_batch(plant, n, seed, fault=fault, size=size, duration=DURATION, onset=onset)
+    runs = make_batch(plant, n, seed, fault=fault, size=size, duration=run_seconds(th, fault), onset=onset)
     inp, cfg = runs.inp, preset(th.filter)
     if reference:
-        ref = make_reference_batch(plant, runs.truth["params"], seed, duration=DURATION)
+        ref = make_reference_batch(plant, runs.truth["params"], seed, duration=REFERENCE_S)
         inp, cfg = calibration.apply(inp, cfg, calibration.learn(run_filter(ref.inp, cfg), cfg))
     out = run_filter(inp, cfg)
     st, th = _alarm_statistics(out, th)
@@ -100,6 +104,12 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, reference: bo
         k_b = k0 if fault is not None else np.round(draw_onsets(n, seed) / DT).astype(np.int64)
         res["evidence"] = onset_bound.onset_evidence(out, k_b)
     return res
+
+
+def run_seconds(th: Thresholds, fault) -> float:
+    """Length [s] of a tune run: DURATION for fault runs, the thresholds' run_length_s for
+    healthy ones (at least DURATION)."""
+    return DURATION if fault is not None else max(DURATION, th.run_length_s)
 
 
 def _window_maxima(st: dict, th: Thresholds, k0: np.ndarray) -> dict:
@@ -578,7 +588,7 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
              f"Thresholds: {th.source} (not fitted to these runs).", "",
              *(["Every machine was first calibrated on a healthy 4 s reference recording of its own (another "
                  "load and input): `--reference`, as `fdi replay --reference` does.", ""] if reference else []),
-             f"Held-out healthy runs: {m['healthy_runs']} x {DURATION:g} s; false-alarm rate (any alarm per run): "
+             f"Held-out healthy runs: {m['healthy_runs']} x {run_seconds(th, None):g} s; false-alarm rate (any alarm per run): "
              f"{m['false_alarm_rate']:.3f}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"
                                                                   for b, v in zip(bins, m["false_alarm_by_load"])), "",
              f"Isolation decisions within 1 s of the onset (fault runs detected within 1 s): "

@@ -292,20 +292,22 @@ def test_diagnosis_names_several_faults(pair_decisions):
 
 
 def test_early_decision_revised_by_the_data_after_the_alarm():
-    """The shipped -5 % offset step (sine, 494 kg, nominal plant): its first 0.25 s after the
-    onset fit K_int better, so the bank names K_int at the alarm; the several-faults window's
-    single-fault filters (4 s after the alarm) favour the offset by far more than the margin,
-    and the diagnosis is revised to offset- with the size of the truth, the note naming both."""
+    """The shipped -5 % offset in a 40 s extend/retract cycle (494 kg, nominal plant): the data
+    right after the alarm fit K_int better, so the bank names K_int at the alarm; the
+    several-faults window's single-fault filters (4 s after the alarm) favour the offset by far
+    more than the margin, and the diagnosis is revised to offset- with the size of the truth,
+    the note naming both. (Until session 10 the -5 % step under a sine showed this; with the
+    session-11 thresholds its alarm comes later and the bank names offset- at once.)"""
     from sam import load_plant
     from sam.scenario import load_scenario, run_scenario
     from fdi.replay import replay
 
     root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
-    rec = run_scenario(load_scenario(root / "offset_minus5pct_step.toml"))
+    rec = run_scenario(load_scenario(root / "offset_minus5pct_cycle.toml"))
     d = replay(rec, load_plant())[3]
     assert d.status == "fault" and d.isolated == ["offset-"]
     assert d.size["offset-"]["value"] == pytest.approx(-5.0, abs=0.2)
-    assert d.likelihood["revised_from"] == "K_int"
+    assert d.likelihood.get("revised_from") == "K_int"
     assert d.likelihood["revised_lead_nats"] > iso.margin_for()
     assert "revised to offset-" in d.note
 

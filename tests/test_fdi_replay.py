@@ -488,7 +488,7 @@ def test_vote_rules_follow_the_sensitivity_studies():
     from fdi import thresholds as T
     plant = load_plant()
     for rule in ("detectable", "specific"):
-        th, rep = T.compute_thresholds(plant, N_leak=4, N_nuisance=4, vote_rule=rule)
+        th, rep = T.compute_thresholds(plant, N_leak=4, N_nuisance=4, vote_rule=rule, run_length_s=4.0)
         for p_, votes in th.votes.items():
             if rule == "detectable":
                 expect = [s >= T.VOTE_SNR for s in rep["votes_snr_own"][p_]]

@@ -1,0 +1,116 @@
+"""The change test of fdi.detect: the CUSUM with memory (closed forms), and what the session-11
+thresholds promise over long healthy recordings."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fdi.detect import Thresholds, cusum
+
+DT = 1e-3
+
+
+@given(r=st.floats(1.5, 20.0), drift=st.floats(0.0, 1.0), memory=st.floats(0.05, 2.0))
+@settings(max_examples=30, deadline=None)
+def test_constant_offset_saturates_at_offset_times_memory(r, drift, memory):
+    """A constant residual r > drift brings g to the geometric sum (r - drift) dt (1 - a^k) / (1 - a),
+    a = exp(-dt / memory): (r - drift) memory to O(dt) once k dt >> memory. Without memory g grows
+    as (r - drift) k dt without bound: why a healthy run's lasting offset no longer adds up."""
+    T = 5000
+    g = cusum(np.full((1, T), r), drift, DT, 0, None, memory)[0]
+    a = math.exp(-DT / memory)
+    k = np.arange(1, T + 1)
+    assert np.allclose(g, (r - drift) * DT * (1 - a**k) / (1 - a), rtol=1e-9)
+    if T * DT > 10 * memory:
+        assert g[-1] == pytest.approx((r - drift) * memory, rel=DT / memory + 1e-4)
+    classic = cusum(np.full((1, T), r), drift, DT, 0, None, None)[0]
+    assert np.allclose(classic, (r - drift) * DT * k)
+
+
+def test_held_samples_neither_add_nor_forget():
+    """Where the residual does not vote the statistic is held: no increment, no decay."""
+    r = np.full((1, 3000), 3.0)
+    active = np.ones((1, 3000), dtype=bool)
+    active[0, 1000:2000] = False
+    g = cusum(r, 1.0, DT, 0, active, 0.5)[0]
+    assert np.all(g[1000:2000] == g[999])
+    assert g[2000] > g[999]
+
+
+def test_below_drift_resets_like_the_classic_cusum():
+    """r below the drift drives g to 0 with or without memory (max(0, .))."""
+    r = np.concatenate([np.full(500, 4.0), np.full(2000, -1.0)])[None, :]
+    for memory in (None, 0.5):
+        g = cusum(r, 1.0, DT, 0, None, memory)[0]
+        assert g[499] > 0 and g[-1] == 0.0
+
+
+def test_thresholds_file_memory_is_validated(tmp_path):
+    for bad in ("0", "-1.0", "\"fast\"", "inf"):
+        f = tmp_path / "th.toml"
+        f.write_text(f"[thresholds]\nmemory_s = {bad}\n")
+        with pytest.raises(ValueError, match="memory_s"):
+            Thresholds.load(f)
+    f.write_text("[thresholds]\nmemory_s = 0.5\n")
+    assert Thresholds.load(f).memory_s == 0.5
+    f.write_text("[thresholds]\n")
+    assert Thresholds.load(f).memory_s is None
+
+
+@pytest.mark.slow
+def test_long_healthy_runs_stay_healthy():
+    """The false-alarm level is stated per 20 s healthy run (Thresholds.run_length_s): 30 held-out
+    healthy 20 s runs (unknown load 0-800 kg, nuisance parameters, encoder angle, seed apart
+    from the thresholds' studies and the tune's) raise at most one alarm. With the session-10
+    rule (4 s runs, no memory) 44 of 100 such runs false-alarmed (docs/fdi.md, "Long recordings")."""
+    from sam import load_plant
+    from fdi.detect import statistics
+    from fdi.montecarlo import make_batch
+    from fdi.ukf import preset, run_filter
+
+    th = Thresholds.shipped()
+    assert th.run_length_s == 20.0 and th.memory_s is not None
+    runs = make_batch(load_plant(), 30, 424242, duration=th.run_length_s)
+    st = statistics(run_filter(runs.inp, preset(th.filter)), th)
+    alarmed = np.any([(g > th.h[h]).any(axis=1) for h, g in st.items()], axis=0)
+    assert alarmed.sum() <= 1
+
+
+ENCODER_ONLY_KNOWN_FALSE_ALARM = {
+    # a 13 s steady extension: the K_int estimate wanders up (docs/fdi.md, "Long steady strokes")
+    "healthy_cycle_40s_494kg.toml",
+}
+
+
+def _healthy_scenarios():
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
+    return [pytest.param(f, marks=pytest.mark.xfail(strict=True, reason="long steady stroke: K_int wanders"))
+            if f.name in ENCODER_ONLY_KNOWN_FALSE_ALARM else f for f in sorted(root.glob("healthy_*.toml"))]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", _healthy_scenarios(), ids=lambda f: f.stem)
+def test_shipped_healthy_scenarios_are_healthy_from_the_encoder_alone(scenario):
+    """The real SAM has only the encoder. Each shipped healthy scenario (4-60 s, 0-800 kg, step,
+    sine, PRBS, cycles, a load change), replayed from theta alone (x dropped), is "healthy";
+    until session 10 the 10 s PRBS at 494 kg false-alarmed this way (offset- at 9.3 s). The 40 s
+    cycle still does (K_int, in its 13 s extension): a strict xfail, so that a fix shows."""
+    from sam import Recording, load_plant
+    from sam.scenario import load_scenario, run_scenario
+    from fdi.replay import replay
+
+    rec = run_scenario(load_scenario(scenario))
+    sig = {k: v for k, v in rec.signals.items() if k != "x"}
+    d = replay(Recording(rec.t, sig, {}, rec.metadata, "s"), load_plant())[3]
+    assert d.status == "healthy", d.alarms
+
+
+def test_there_are_nine_healthy_scenarios():
+    assert len(_healthy_scenarios()) == 9
