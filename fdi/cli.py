@@ -66,8 +66,8 @@ def add_commands(subparsers) -> None:
     t = sub.add_parser("tune", help="Monte Carlo detection metrics on held-out runs (resumable)")
     t.add_argument("--thresholds", help="thresholds.toml (default: the shipped one)")
     t.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
-    t.add_argument("--runs", type=int, default=100, help="healthy runs N (default 100); fault runs: max(5, N // 5) "
-                   "per fault type and size")
+    t.add_argument("--runs", type=int, default=100, help="healthy runs N (default 100), each as long as the thresholds' "
+                   "run_length_s (20 s for the shipped ones); fault runs of 4 s: max(5, N // 5) per fault type and size")
     t.add_argument("--workers", type=int, default=1,
                    help="local worker processes (a process pool; --scheduler runs on a dask cluster instead)")
     t.add_argument("--scheduler", help="dask scheduler address, e.g. tcp://host:8786")

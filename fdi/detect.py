@@ -12,9 +12,9 @@ Residuals (per sample):
 
 Alarms: a one-sided CUSUM per hypothesis on its change residual in continuous time,
 ``g <- max(0, g exp(-dt / memory) + (r - drift) dt)``, held in regimes where the residual does
-not vote, alarm when ``g > h`` [sigma s]. The memory bounds what a healthy run's persistent
-offset of the change residual can add up to, so the false-alarm rate does not grow with the
-length of the recording (``Thresholds.memory_s``). sigma, the votes, the confusable pairs
+not vote, alarm when ``g > h`` [sigma s]. The memory bounds what a healthy run's lasting
+offset of the change residual can add up to (``Thresholds.memory_s``); the false-alarm level is
+stated per healthy run of ``Thresholds.run_length_s`` (a longer recording has more chances). sigma, the votes, the confusable pairs
 and h come from the sensitivity studies of :mod:`fdi.thresholds` (docs/fdi.md). A model-fit alarm on
 the weighted NIS flags faults that no parameter explains.
 
@@ -75,6 +75,16 @@ SHIPPED_THRESHOLDS = Path(__file__).resolve().parents[1] / "scenarios" / "faults
 
 #: The allowed values of the Thresholds fields that name a method.
 CHOICES = {"isolation": ("signature", "likelihood"), "detector": ("cusum", "glr")}
+
+
+#: s: the healthy-run lengths a thresholds file may state its level for: at least a tune fault
+#: run (fdi.tune.DURATION), at most an hour of simulation per run
+MIN_RUN_LENGTH_S, MAX_RUN_LENGTH_S = 4.0, 3600.0
+
+
+def _is_number(x) -> bool:
+    """A real number from a file (TOML reads true as a bool, which Python counts as 1)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
 
 
 @dataclass(frozen=True)
@@ -167,8 +177,12 @@ class Thresholds:
             if key in data and data[key] not in allowed:
                 raise ValueError(f"{key!r} = {data[key]!r} is not one of {', '.join(map(repr, allowed))}")
         mem = data.get("memory_s")
-        if mem is not None and not (isinstance(mem, (int, float)) and 0 < mem < math.inf):
+        if mem is not None and not (_is_number(mem) and 0 < mem < math.inf):
             raise ValueError(f"'memory_s' = {mem!r} is not a time constant in seconds (> 0; leave it out for none)")
+        length = data.get("run_length_s", 4.0)
+        if not (_is_number(length) and MIN_RUN_LENGTH_S <= length <= MAX_RUN_LENGTH_S):
+            raise ValueError(f"'run_length_s' = {length!r} is not a run length in seconds "
+                             f"({MIN_RUN_LENGTH_S:g}-{MAX_RUN_LENGTH_S:g})")
         dt = data.get("sample_dt_s", 1e-3)
         if not (isinstance(dt, (int, float)) and 0 < dt < 1):
             raise ValueError(f"'sample_dt_s' = {dt!r} is not a sampling step in seconds (0 < dt < 1)")
@@ -345,24 +359,23 @@ def cusum(r: np.ndarray, drift: float, dt: float, warmup: int = 0, active: np.nd
     none forgotten); where ``active`` is False (a regime in which the residual does not vote)
     the statistic is held: g_k = max(0, a g_(k-1) + (r_k - drift) dt), a = exp(-dt / memory_s),
     for k >= warmup, g = 0 before. A constant r > drift brings g to (r - drift) memory_s."""
-    inc = np.nan_to_num(r - drift, nan=-drift) * dt
-    keep = np.ones_like(inc) if memory_s is None else np.full_like(inc, math.exp(-dt / memory_s))
-    if active is not None:
-        inc = np.where(active, inc, 0.0)
-        keep = np.where(active, keep, 1.0)
-    return _cusum_recursion(np.ascontiguousarray(inc, dtype=float), np.ascontiguousarray(keep, dtype=float),
-                            int(warmup))
+    inc = np.ascontiguousarray(np.nan_to_num(r - drift, nan=-drift) * dt, dtype=float)
+    act = np.ones(inc.shape, dtype=bool) if active is None else np.ascontiguousarray(np.broadcast_to(active, inc.shape))
+    keep = 1.0 if memory_s is None else math.exp(-dt / memory_s)
+    return _cusum_recursion(inc, act, keep, int(warmup))
 
 
 @numba.njit(cache=True)
-def _cusum_recursion(inc, keep, warmup):
-    """g[:, k] = max(0, keep[:, k] g[:, k-1] + inc[:, k]) from k = warmup on (0 before)."""
+def _cusum_recursion(inc, active, keep, warmup):
+    """g[:, k] = max(0, keep g[:, k-1] + inc[:, k]) where active, g[:, k-1] where not, from
+    k = warmup on (0 before)."""
     B, T = inc.shape
     g = np.zeros((B, T))
     for b in range(B):
         acc = 0.0
         for k in range(warmup, T):
-            acc = max(0.0, keep[b, k] * acc + inc[b, k])
+            if active[b, k]:
+                acc = max(0.0, keep * acc + inc[b, k])
             g[b, k] = acc
     return g
 
@@ -514,6 +527,7 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
                     f"own estimates over [{th.warmup_s:g}, {th.warmup_s + th.baseline_s:g}] s (unpinned samples; "
                     f"the first {th.baseline_s:g} s of them if the record starts pinned)",
                     "false_alarm_level": th.false_alarm_level, "run_length_s": th.run_length_s,
+                    "cusum_memory_s": th.memory_s,
                     "isolation": th.isolation, "source": th.source},
         note=note,
     )

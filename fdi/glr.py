@@ -27,8 +27,9 @@ detection within 1 s collapses. An option, not the default.
 The threshold is NOT a chi-square level (healthy windows reach tens of nats from model error):
 :func:`glr_threshold` takes it from the healthy runs of the nuisance GSA of
 :mod:`fdi.thresholds` (the same design and seed as the CUSUM thresholds), as the
-(1 - alpha) Gumbel quantile of the per-run maxima, alpha the stated false-alarm level per
-4 s run (one statistic, so no Bonferroni split).
+(1 - alpha) quantile of the per-run maxima (the CUSUM rule, :func:`fdi.thresholds.level_threshold`),
+alpha the stated false-alarm level per healthy run of ``Thresholds.run_length_s`` (one statistic,
+so no Bonferroni split).
 """
 
 from __future__ import annotations
@@ -89,9 +90,9 @@ def first_alarm(g: np.ndarray, h: float) -> np.ndarray:
 
 
 def glr_threshold(maxima: np.ndarray, level: float) -> float:
-    """h_glr for a stated false-alarm ``level`` per run: the (1 - level) quantile of a Gumbel
-    law fitted by moments to the healthy per-run maxima (the CUSUM rule of fdi.thresholds),
-    never below 1.05 x their largest value."""
-    from .thresholds import _gumbel_quantile
+    """h_glr for a stated false-alarm ``level`` per run: the (1 - level) quantile of the healthy
+    per-run maxima by the CUSUM rule (:func:`fdi.thresholds.level_threshold`; until session 10
+    also never below 1.05 x their largest value, the rule of the shipped thresholds_glr.toml)."""
+    from .thresholds import level_threshold
 
-    return float(max(_gumbel_quantile(maxima, 1.0 - level), 1.05 * np.max(maxima)))
+    return level_threshold(maxima, 1.0 - level)

@@ -107,9 +107,9 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, reference: bo
 
 
 def run_seconds(th: Thresholds, fault) -> float:
-    """Length [s] of a tune run: DURATION for fault runs, the thresholds' run_length_s for
-    healthy ones (at least DURATION)."""
-    return DURATION if fault is not None else max(DURATION, th.run_length_s)
+    """Length [s] of a tune run: DURATION for fault runs, the thresholds' run_length_s (the run
+    their false-alarm level is stated for, >= DURATION: fdi.detect.MIN_RUN_LENGTH_S) for healthy ones."""
+    return DURATION if fault is not None else th.run_length_s
 
 
 def _window_maxima(st: dict, th: Thresholds, k0: np.ndarray) -> dict:
@@ -464,6 +464,7 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
     n_dec = sum(r["decisions_within_1s"] for r in rows)
     n_wrong = sum(r["wrong_decisions"] for r in rows)
     metrics = {"false_alarm_rate": fa, "false_alarm_by_load": fa_by_load, "healthy_runs": int(len(hmax)),
+               "healthy_run_s": run_seconds(th, None), "fault_run_s": DURATION,
                "load_bins_kg": LOAD_BINS, "thresholds_source": th.source, "isolation": th.isolation, "rows": rows,
                "isolation_decisions_within_1s": n_dec, "wrong_isolation_decisions": n_wrong,
                "wrong_isolation_rate": n_wrong / n_dec if n_dec else float("nan"),
@@ -586,7 +587,7 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
     wr = m["wrong_isolation_rate"]
     lines = ["# FDI tuning metrics", "",
              f"Thresholds: {th.source} (not fitted to these runs).", "",
-             *(["Every machine was first calibrated on a healthy 4 s reference recording of its own (another "
+             *([f"Every machine was first calibrated on a healthy {REFERENCE_S:g} s reference recording of its own (another "
                  "load and input): `--reference`, as `fdi replay --reference` does.", ""] if reference else []),
              f"Held-out healthy runs: {m['healthy_runs']} x {run_seconds(th, None):g} s; false-alarm rate (any alarm per run): "
              f"{m['false_alarm_rate']:.3f}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"

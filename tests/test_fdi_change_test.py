@@ -51,7 +51,7 @@ def test_below_drift_resets_like_the_classic_cusum():
 
 
 def test_thresholds_file_memory_is_validated(tmp_path):
-    for bad in ("0", "-1.0", "\"fast\"", "inf"):
+    for bad in ("0", "-1.0", "\"fast\"", "inf", "nan", "true"):
         f = tmp_path / "th.toml"
         f.write_text(f"[thresholds]\nmemory_s = {bad}\n")
         with pytest.raises(ValueError, match="memory_s"):
@@ -60,6 +60,41 @@ def test_thresholds_file_memory_is_validated(tmp_path):
     assert Thresholds.load(f).memory_s == 0.5
     f.write_text("[thresholds]\n")
     assert Thresholds.load(f).memory_s is None
+    for bad in ("2.0", "1e9", "\"20\"", "true", "nan"):
+        f.write_text(f"[thresholds]\nrun_length_s = {bad}\n")
+        with pytest.raises(ValueError, match="run_length_s"):
+            Thresholds.load(f)
+
+
+def test_the_cusum_memory_is_reported():
+    """describe() and the diagnosis name the CUSUM the thresholds were derived for."""
+    from fdi.thresholds import describe
+    assert "memory 0.5 s" in describe(Thresholds.shipped())
+    assert "memory none" in describe(Thresholds())
+
+
+def test_tune_runs_last_what_the_level_is_stated_for():
+    """Healthy tune runs last the thresholds' run_length_s; fault runs the tune's 4 s."""
+    from dataclasses import replace
+    from fdi.tune import DURATION, run_seconds
+    th = Thresholds.shipped()
+    assert run_seconds(th, None) == th.run_length_s == 20.0
+    assert run_seconds(replace(th, run_length_s=4.0), None) == 4.0
+    assert run_seconds(th, "K_int") == DURATION == 4.0
+
+
+def test_random_input_draws_in_the_order_of_sessions_1_to_10():
+    """The studies and the Monte Carlo share fdi.synth.random_input; it draws amplitude, frequency,
+    PRBS seed and cycle period in that order, so that the shipped thresholds (seeded draws) are
+    reproducible: the same signal and the same generator state as the explicit draws."""
+    from fdi.synth import CYCLE_PERIOD_S, input_signal, random_input
+    t = np.arange(3000) * DT
+    for kind in ("sine", "cycle", "prbs"):
+        a, b = np.random.default_rng(7), np.random.default_rng(7)
+        got = random_input(kind, t, a)
+        want = input_signal(kind, t, amplitude=b.uniform(2.0, 4.0), frequency=b.uniform(0.25, 0.6),
+                            seed=int(b.integers(1 << 31)), period=b.uniform(*CYCLE_PERIOD_S))
+        assert np.array_equal(got, want) and a.uniform() == b.uniform()
 
 
 @pytest.mark.slow
@@ -110,7 +145,3 @@ def test_shipped_healthy_scenarios_are_healthy_from_the_encoder_alone(scenario):
     sig = {k: v for k, v in rec.signals.items() if k != "x"}
     d = replay(Recording(rec.t, sig, {}, rec.metadata, "s"), load_plant())[3]
     assert d.status == "healthy", d.alarms
-
-
-def test_there_are_nine_healthy_scenarios():
-    assert len(_healthy_scenarios()) == 9

@@ -498,5 +498,10 @@ def test_vote_rules_follow_the_sensitivity_studies():
                 assert votes == expect, (rule, p_)
             assert all(np.isfinite(rep["votes_snr_own"][p_]))
         assert ("votes specific" in th.source) == (rule == "specific")
+        assert th.memory_s == T.MEMORY_S and th.run_length_s == 4.0 and "healthy runs 4 s" in th.source
     with pytest.raises(ValueError, match="vote_rule"):
         T.compute_thresholds(plant, N_leak=4, N_nuisance=4, vote_rule="detectible")
+    with pytest.raises(ValueError, match="memory_s"):
+        T.compute_thresholds(plant, N_leak=4, N_nuisance=4, memory_s=0.0)
+    with pytest.raises(ValueError, match="run_length_s"):
+        T.compute_thresholds(plant, N_leak=4, N_nuisance=4, run_length_s=1.0)
