@@ -116,27 +116,20 @@ def test_long_healthy_runs_stay_healthy():
     assert alarmed.sum() <= 1
 
 
-ENCODER_ONLY_KNOWN_FALSE_ALARM = {
-    # a 13 s steady extension: the K_int estimate wanders up (docs/fdi.md, "Long steady strokes")
-    "healthy_cycle_40s_494kg.toml",
-}
-
-
 def _healthy_scenarios():
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
-    return [pytest.param(f, marks=pytest.mark.xfail(strict=True, reason="long steady stroke: K_int wanders"))
-            if f.name in ENCODER_ONLY_KNOWN_FALSE_ALARM else f for f in sorted(root.glob("healthy_*.toml"))]
+    return sorted(root.glob("healthy_*.toml"))
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario", _healthy_scenarios(), ids=lambda f: f.stem)
 def test_shipped_healthy_scenarios_are_healthy_from_the_encoder_alone(scenario):
     """The real SAM has only the encoder. Each shipped healthy scenario (4-60 s, 0-800 kg, step,
-    sine, PRBS, cycles, a load change), replayed from theta alone (x dropped), is "healthy";
-    until session 10 the 10 s PRBS at 494 kg false-alarmed this way (offset- at 9.3 s). The 40 s
-    cycle still does (K_int, in its 13 s extension): a strict xfail, so that a fix shows."""
+    sine, PRBS, cycles, a load change), replayed from theta alone (x dropped), is "healthy".
+    Until session 10 the 10 s PRBS at 494 kg (offset- at 9.3 s) and the 40 s cycle (from 8.5 s
+    on, in its 13 s extension) false-alarmed this way."""
     from sam import Recording, load_plant
     from sam.scenario import load_scenario, run_scenario
     from fdi.replay import replay

@@ -33,11 +33,10 @@ def _end_stop_run():
 def test_end_stop_creep_is_held_not_alarmed():
     """On the end stop a leak from A to tank carries no flow, so K_extA is unobservable and
     its non-negative estimate creeps up (measured: 0.38 L/min after 6.6 s there). Holding the
-    tests of the parameters the pinned pressures hide keeps the run healthy; with the classic
-    CUSUM of sessions 1-10 (no memory) and no hold, the same data alarm K_extA (this is what the
-    shipped 40 s healthy cycle did). With the shipped memory this short creep stays below h even
-    unheld (the filter's own std grows with it); the shipped 60 s stall at 800 kg still needs
-    the hold (test_the_long_stall_still_needs_the_hold)."""
+    tests of the parameters the pinned pressures hide keeps the run healthy. (With the session-10
+    thresholds the same data alarmed K_extA unheld, as the shipped 40 s healthy cycle did; with
+    the session-11 CUSUM memory this short creep stays below h even unheld, so the case where the
+    hold still decides is the 60 s stall: test_the_long_stall_still_needs_the_hold.)"""
     out = _end_stop_run()
     th = Thresholds.shipped()
     pin = pinned(out, th)[0]
@@ -45,9 +44,6 @@ def test_end_stop_creep_is_held_not_alarmed():
     hidden = held(out, th)[0][:, int(2 / DT):].all(axis=1)
     assert dict(zip(PARAMS, hidden)) == {"K_int": False, "K_extA": True, "K_extB": False, "offset": True}
     assert diagnose(out, th, 0).status == "healthy"
-    unheld = diagnose(out, replace(th, pin_margin_Pa=NO_PINNING, memory_s=None), 0)
-    assert "K_extA" in unheld.alarms
-    assert diagnose(out, replace(th, pin_margin_Pa=NO_PINNING), 0).status == "healthy"
 
 
 @pytest.mark.slow
