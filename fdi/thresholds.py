@@ -60,10 +60,10 @@ MEMORY_S = 0.5
 VOTE_ST = 0.5  #: a residual votes for fault f in a regime where ST_f >= this (vote rule "specific")
 #: vote rule "detectable" (default): a residual votes in a regime where the fault's share of it
 #: over the leakage box, sqrt(ST_f Var(Y)), is at least VOTE_SNR healthy spreads sigma (nuisance
-#: GSA). Measured (shipped studies, session 11, 20 s spreads): K_int 7-11, K_extA 8-17, K_extB
-#: 10-14, offset 2.5-3.6, so the leak residuals vote everywhere and the offset's only while
-#: retracting (session 10, 4 s spreads: offset 3.5-6, everywhere); with "specific" K_int voted
-#: only while extending (ST 0.26-0.38 elsewhere: confounded with the other faults, not small).
+#: GSA). Measured (shipped studies, session 11, 20 s spreads): K_int 8-11, K_extA 11-20, K_extB
+#: 8-12, offset 3.5-4.4, so every residual votes everywhere (with the 1e-4 rad encoder floor the
+#: offset's was 2.5-3.6 and voted only while retracting); with "specific" K_int voted only while
+#: extending (ST 0.26-0.38 elsewhere: confounded with the other faults, not small).
 VOTE_SNR = 3.0
 VOTE_RULES = ("specific", "detectable")
 CONFUSE_ST = 0.2  #: another fault with ST >= this on a voting residual: confusable pair

@@ -68,9 +68,18 @@ def test_thresholds_file_memory_is_validated(tmp_path):
 
 def test_the_cusum_memory_is_reported():
     """describe() and the diagnosis name the CUSUM the thresholds were derived for."""
+    from sam import load_plant
+    from fdi.detect import diagnose
+    from fdi.synth import input_signal, simulate_runs
     from fdi.thresholds import describe
+    from fdi.ukf import run_filter
     assert "memory 0.5 s" in describe(Thresholds.shipped())
     assert "memory none" in describe(Thresholds())
+    t = np.arange(2501) * DT
+    runs = simulate_runs(load_plant().vector()[None], input_signal("sine", t), DT, seed=3)
+    out = run_filter(runs.inp)
+    assert diagnose(out, Thresholds.shipped(), 0).thresholds["cusum_memory_s"] == 0.5
+    assert diagnose(out, Thresholds(), 0).thresholds["cusum_memory_s"] is None
 
 
 def test_tune_runs_last_what_the_level_is_stated_for():
@@ -86,14 +95,15 @@ def test_tune_runs_last_what_the_level_is_stated_for():
 def test_random_input_draws_in_the_order_of_sessions_1_to_10():
     """The studies and the Monte Carlo share fdi.synth.random_input; it draws amplitude, frequency,
     PRBS seed and cycle period in that order, so that the shipped thresholds (seeded draws) are
-    reproducible: the same signal and the same generator state as the explicit draws."""
-    from fdi.synth import CYCLE_PERIOD_S, input_signal, random_input
+    reproducible: the same signal and the same generator state as the explicit draws, with the
+    ranges of sessions 1-10 written out (amplitude 2-4 V, 0.25-0.6 Hz, cycle period 2-4 s)."""
+    from fdi.synth import input_signal, random_input
     t = np.arange(3000) * DT
     for kind in ("sine", "cycle", "prbs"):
         a, b = np.random.default_rng(7), np.random.default_rng(7)
         got = random_input(kind, t, a)
         want = input_signal(kind, t, amplitude=b.uniform(2.0, 4.0), frequency=b.uniform(0.25, 0.6),
-                            seed=int(b.integers(1 << 31)), period=b.uniform(*CYCLE_PERIOD_S))
+                            seed=int(b.integers(1 << 31)), period=b.uniform(2.0, 4.0))
         assert np.array_equal(got, want) and a.uniform() == b.uniform()
 
 
@@ -128,8 +138,9 @@ def _healthy_scenarios():
 def test_shipped_healthy_scenarios_are_healthy_from_the_encoder_alone(scenario):
     """The real SAM has only the encoder. Each shipped healthy scenario (4-60 s, 0-800 kg, step,
     sine, PRBS, cycles, a load change), replayed from theta alone (x dropped), is "healthy".
-    Until session 10 the 10 s PRBS at 494 kg (offset- at 9.3 s) and the 40 s cycle (from 8.5 s
-    on, in its 13 s extension) false-alarmed this way."""
+    With the session-10 thresholds the 10 s PRBS at 494 kg (offset- at 9.3 s) and the 40 s cycle
+    (from 8.5 s on, in its 13 s extension) false-alarmed this way; with the 20 s thresholds and
+    the 1e-4 rad encoder floor, the 40 s cycle still did (K_int at 14.8 s)."""
     from sam import Recording, load_plant
     from sam.scenario import load_scenario, run_scenario
     from fdi.replay import replay
