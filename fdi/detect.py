@@ -13,10 +13,11 @@ Residuals (per sample):
 Alarms: a one-sided CUSUM per hypothesis on its change residual in continuous time,
 ``g <- max(0, g exp(-dt / memory) + (r - drift) dt)``, held in regimes where the residual does
 not vote, alarm when ``g > h`` [sigma s]. The memory bounds what a healthy run's lasting
-offset of the change residual can add up to (``Thresholds.memory_s``); the false-alarm level is
-stated per healthy run of ``Thresholds.run_length_s`` (a longer recording has more chances). sigma, the votes, the confusable pairs
-and h come from the sensitivity studies of :mod:`fdi.thresholds` (docs/fdi.md). A model-fit alarm on
-the weighted NIS flags faults that no parameter explains.
+offset of the change residual can add up to (``Thresholds.memory_s``); the false-alarm level
+is stated per healthy run of ``Thresholds.run_length_s`` (a longer recording has more
+chances). sigma, the votes, the confusable pairs and h come from the sensitivity studies of
+:mod:`fdi.thresholds` (docs/fdi.md). A model-fit alarm on the weighted NIS flags faults that no
+parameter explains.
 
 Isolation and size: ``Thresholds.isolation = "likelihood"`` (the default) hands an alarm to the
 bank of constrained filters of :mod:`fdi.isolate`; "signature" keeps the first-alarm rule with
@@ -179,7 +180,7 @@ class Thresholds:
         mem = data.get("memory_s")
         if mem is not None and not (_is_number(mem) and 0 < mem < math.inf):
             raise ValueError(f"'memory_s' = {mem!r} is not a time constant in seconds (> 0; leave it out for none)")
-        length = data.get("run_length_s", 4.0)
+        length = data.get("run_length_s", cls.run_length_s)
         if not (_is_number(length) and MIN_RUN_LENGTH_S <= length <= MAX_RUN_LENGTH_S):
             raise ValueError(f"'run_length_s' = {length!r} is not a run length in seconds "
                              f"({MIN_RUN_LENGTH_S:g}-{MAX_RUN_LENGTH_S:g})")

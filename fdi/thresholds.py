@@ -53,7 +53,8 @@ DURATION, SIM_DT, ONSET = 4.0, 1e-3, 1.5
 #: moved both ways (docs/fdi.md, "Long recordings")
 NUISANCE_DURATION = 20.0
 #: s: the CUSUM memory the thresholds are derived for (Thresholds.memory_s). Measured on 100
-#: healthy 20 s runs and 46 runs per fault (h fitted to the healthy runs): no memory 46 / 46 %
+#: healthy 20 s runs and 46 runs per fault (h fitted to the healthy runs; the 1e-4 rad encoder
+#: floor of sessions 6-10): no memory 46 / 46 %
 #: of +-1 % offsets found within 1 s; 2 s: 91 / 46 %; 1 s: 96 / 50 %; 0.5 s: 96 / 59 %, the
 #: leaks 0.25 L/min 85-93 % for all (docs/fdi.md, "Long recordings")
 MEMORY_S = 0.5
@@ -256,9 +257,9 @@ def level_threshold(maxima: np.ndarray, p: float) -> float:
     """The threshold of a stated level: the p quantile of the healthy per-run maxima, the larger
     of a Gumbel law fitted by moments and the empirical quantile, so that neither a poor fit nor a
     thin tail lowers it. Not "at least the largest maximum" (the rule until session 10): with 20 s
-    runs the largest of 1408 is one outlying run, and it set h at about 1/1400 per test (held out:
-    0 of 230 false alarms, and +-1 % offsets isolated within 1 s in 54 / 33 % instead of 67 / 72 %;
-    docs/fdi.md, "Long recordings")."""
+    runs the largest of 1408 is one outlying run, and it set h at about 1/1400 per test (held out,
+    with the 1e-4 rad encoder floor: 0 of 230 false alarms, and +-1 % offsets isolated within 1 s
+    in 54 / 33 % instead of 67 / 72 %; docs/fdi.md, "Long recordings")."""
     return float(max(_gumbel_quantile(maxima, p), np.quantile(maxima, p)))
 
 
@@ -462,7 +463,8 @@ def describe(th: Thresholds) -> str:
     from .ukf import leak_lpm
 
     memory = "none" if th.memory_s is None else f"{th.memory_s:g} s"
-    lines = [f"CUSUM drift {th.drift:g} sigma, memory {memory}; baseline over [{th.warmup_s:g}, {th.warmup_s + th.baseline_s:g}] s; "
+    window = f"[{th.warmup_s:g}, {th.warmup_s + th.baseline_s:g}] s"
+    lines = [f"CUSUM drift {th.drift:g} sigma, memory {memory}; baseline over {window}; "
              f"false-alarm level {th.false_alarm_level:g} per {th.run_length_s:g} s run", "",
              "| hypothesis | h [sigma s] |", "|---|---|"]
     lines += [f"| {k} | {v:.3g} |" for k, v in th.h.items()]
