@@ -83,6 +83,16 @@ CHOICES = {"isolation": ("signature", "likelihood"), "detector": ("cusum", "glr"
 MIN_RUN_LENGTH_S, MAX_RUN_LENGTH_S = 4.0, 3600.0
 
 
+#: the time fields a thresholds file may set: (lowest, highest, what a valid value is); an
+#: absent key is the dataclass default (for memory_s: no memory)
+TIME_FIELDS = {
+    "memory_s": (1e-9, 1e9, "a time constant in seconds (> 0; leave it out for none)"),
+    "run_length_s": (MIN_RUN_LENGTH_S, MAX_RUN_LENGTH_S,
+                     f"a run length in seconds ({MIN_RUN_LENGTH_S:g}-{MAX_RUN_LENGTH_S:g})"),
+    "sample_dt_s": (1e-6, 0.5, "a sampling step in seconds (1e-6 to 0.5)"),
+}
+
+
 def _is_number(x) -> bool:
     """A real number from a file (TOML reads true as a bool, which Python counts as 1)."""
     return isinstance(x, (int, float)) and not isinstance(x, bool)
@@ -177,16 +187,10 @@ class Thresholds:
         for key, allowed in CHOICES.items():
             if key in data and data[key] not in allowed:
                 raise ValueError(f"{key!r} = {data[key]!r} is not one of {', '.join(map(repr, allowed))}")
-        mem = data.get("memory_s")
-        if mem is not None and not (_is_number(mem) and 0 < mem < math.inf):
-            raise ValueError(f"'memory_s' = {mem!r} is not a time constant in seconds (> 0; leave it out for none)")
-        length = data.get("run_length_s", cls.run_length_s)
-        if not (_is_number(length) and MIN_RUN_LENGTH_S <= length <= MAX_RUN_LENGTH_S):
-            raise ValueError(f"'run_length_s' = {length!r} is not a run length in seconds "
-                             f"({MIN_RUN_LENGTH_S:g}-{MAX_RUN_LENGTH_S:g})")
-        dt = data.get("sample_dt_s", 1e-3)
-        if not (isinstance(dt, (int, float)) and 0 < dt < 1):
-            raise ValueError(f"'sample_dt_s' = {dt!r} is not a sampling step in seconds (0 < dt < 1)")
+        for key, (lo, hi, what) in TIME_FIELDS.items():
+            v = data.get(key)
+            if v is not None and not (_is_number(v) and lo <= v <= hi):
+                raise ValueError(f"{key!r} = {v!r} is not {what}")
         return cls(**data)
 
     @classmethod
