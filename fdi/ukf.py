@@ -5,11 +5,11 @@ State (12), in SI units::
     [p_A, p_B, x_s, dx_s, x, v, z,  K_int, K_extA, K_extB, offset, F_d]
      --- the model state sam.S ---  --- slowly varying parameters ----
 
-The first seven are advanced by :func:`sam.step_batch` (Eq. (22)); the last
+The first seven are advanced by :func:`sam.step_batch_inplace` (Eq. (22)); the last
 five are random walks that are written into the parameter vector of each sigma
 point (columns ``K_int``, ``K_extA``, ``K_extB``, ``offset``, ``F_d`` of
 :data:`sam.P`). All sigma points of all filters of a batch go through ONE
-``step_batch`` call per time step. There is no second copy of the physics here.
+``step_batch_inplace`` call per time step. There is no second copy of the physics here.
 
 Internally every state is divided by :data:`SCALE` (pressures in MPa, leak
 coefficients in L/min at 10 MPa, offset in %, force in kN, ...), so that the
@@ -40,7 +40,8 @@ from dataclasses import dataclass, field, replace
 import numba
 import numpy as np
 
-from sam import P, S, step_batch
+from sam import P, S, step_batch_inplace
+from sam.views import matrix, row
 from sam.hydraulics import leak_coefficient
 from sam.hydraulics import leak_lpm as _leak_lpm
 from sam.measurement import ENCODER_RESOLUTION_RAD
@@ -265,13 +266,14 @@ def merwe_weights(n: int, alpha: float, beta: float, kappa: float):
 
 # The step loop's helpers are inlined into it (measured: 10-15 % of the filter's time;
 # passing row indices instead of views, Pm[b], was slower again).
-_jit_inline = numba.njit(cache=True, inline="always")
+_jit_inline = numba.njit(cache=True, inline="always", error_model="numpy")
 
 
 @_jit_inline
 def _cholesky(A, L, n):
     """Lower Cholesky factor of the leading n x n block of A into L's; returns False if it is
-    not positive definite."""
+    not positive definite. (Row by row; each row's off-diagonal entries are multiplied by the
+    reciprocal of the pivots, one division per pivot instead of one per entry.)"""
     for i in range(n):
         for j in range(i + 1):
             s = A[i, j]
@@ -282,16 +284,16 @@ def _cholesky(A, L, n):
                     return False
                 L[i, i] = math.sqrt(s)
             else:
-                L[i, j] = s / L[j, j]
+                L[i, j] = s * (1.0 / L[j, j])
         for j in range(i + 1, n):
             L[i, j] = 0.0
     return True
 
 
 @_jit_inline
-def _chol_solve(L, b, out, y):
-    """Solve (L L^T) out = b for a vector b; y (n,) is work space."""
-    n = L.shape[0]
+def _chol_solve(L, b, out, y, n):
+    """Solve (L L^T) out = b for a vector b, over the leading n entries (and n x n block of L:
+    no slices, whose views cost reference counting in the filter's loop); y is work space."""
     for i in range(n):
         s = b[i]
         for k in range(i):
@@ -403,13 +405,14 @@ def _chol_leading_cols(P, c, Lc):
         if not s > 0.0:
             return False
         Lc[k, k] = math.sqrt(s)
+        inv = 1.0 / Lc[k, k]
         for j in range(k):
             Lc[j, k] = 0.0
         for j in range(k + 1, n):
             s = c * P[j, k]
             for q in range(k):
                 s -= Lc[j, q] * Lc[k, q]
-            Lc[j, k] = s / Lc[k, k]
+            Lc[j, k] = s * inv
     return True
 
 
@@ -489,7 +492,7 @@ def _weighted_cross(X, x_mean, Y, y_mean, W, out):
             out[j, c] = acc
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _truncate_leaks(z, Pm, shrink_cov, min_mass):
     """Keep the Gaussian posterior (z, Pm) on K >= 0: for each leak state j, truncate its
     marginal N(z_j, P_jj) at 0 (mean and variance of the truncated normal), and update
@@ -566,6 +569,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     sig = np.empty((B, ns, n))
     states = np.empty((B * ns, N_MODEL))
     uu = np.empty(B * ns)
+    flags = np.empty(B * ns, dtype=np.int64)
     params = np.empty((B * ns, npar))
     off = np.zeros(B + 1, dtype=np.int64)  # filter b's sigma points are rows off[b]:off[b+1]
     for b in range(B):
@@ -592,8 +596,10 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     innov = np.empty(m)
     w = np.empty(m)
     Kg = np.empty((n, m))
+    Sinv = np.empty((m, m))
     prow = np.empty(m)
     Qd = Qd.copy()
+    inv_scale = 1.0 / scale  # a multiplication per sigma point and state, not a division
     nA = B  # active runs: b < nA (n_steps is non-increasing)
     for k in range(T):
         while nA > 0 and n_steps[nA - 1] <= k:
@@ -621,8 +627,8 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
         # ---------------- predict (from the posterior at k-1, with u[k-1])
         if k > 0:
             for b in range(nA):
-                _draw_sigma_points(Pm[b], P0[b], z[b], n_act[b] + lam[b], jitter, L, A, sig[b], counts[b],
-                                   act[b], n_act[b])
+                _draw_sigma_points(matrix(Pm, b), matrix(P0, b), row(z, b), n_act[b] + lam[b], jitter, L, A,
+                                   matrix(sig, b), row(counts, b), row(act, b), n_act[b])
                 for i in range(2 * n_act[b] + 1):
                     r = off[b] + i
                     for j in range(N_MODEL):
@@ -640,15 +646,14 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                         params[r, P_S_COL] = ps
             na = off[nA]
             # n_sub model steps of dt / n_sub per sample (input held): a coarse recording
-            new, _flags = step_batch(states[:na], uu[:na], params[:na], dt / n_sub)
-            for _ in range(n_sub - 1):
-                new, _flags = step_batch(new, uu[:na], params[:na], dt / n_sub)
+            for _ in range(n_sub):
+                step_batch_inplace(states[:na], uu[:na], params[:na], dt / n_sub, flags[:na])
             for b in range(nA):
                 nsb = 2 * n_act[b] + 1
                 for i in range(nsb):
                     r = off[b] + i
                     for j in range(N_MODEL):
-                        sig[b, i, j] = new[r, j] / scale[j]
+                        sig[b, i, j] = states[r, j] * inv_scale[j]
                 # unscented transform of the propagated points. The parameter states are
                 # random walks: the model leaves their sigma points as drawn, so their mean
                 # stays z and their block of the covariance stays Pm (the weights reproduce
@@ -700,15 +705,15 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                     if y[b, k, c] == y[b, k, c]:
                         idx[q] = c
                         q += 1
-                if _chol_leading_cols(Pm[b], n_act[b] + lam[b], Lc):
-                    _ut_measure_exact(Pm[b], z[b], n_act[b], Lc, Wm[b, 0], Wc[b, 0], Wc[b, 1], pos_kind, L1, L2, L3,
-                                      zf, Sf, Pf, fp, fm)
+                if _chol_leading_cols(matrix(Pm, b), n_act[b] + lam[b], Lc):
+                    _ut_measure_exact(matrix(Pm, b), row(z, b), n_act[b], Lc, Wm[b, 0], Wc[b, 0], Wc[b, 1], pos_kind,
+                                      L1, L2, L3, zf, Sf, Pf, fp, fm)
                 else:
-                    _draw_sigma_points(Pm[b], P0[b], z[b], n_act[b] + lam[b], jitter, L, A, sig[b], counts[b],
-                                       act[b], n_act[b])
+                    _draw_sigma_points(matrix(Pm, b), matrix(P0, b), row(z, b), n_act[b] + lam[b], jitter, L, A,
+                                       matrix(sig, b), row(counts, b), row(act, b), n_act[b])
                     nsb = 2 * n_act[b] + 1
-                    _ut_measure_sigma(sig[b, :nsb], z[b], Wm[b, :nsb], Wc[b, :nsb], pos_kind, L1, L2, L3, hs, col,
-                                      zf, Sf, Pf)
+                    _ut_measure_sigma(matrix(sig, b)[:nsb], row(z, b), row(Wm, b)[:nsb], row(Wc, b)[:nsb], pos_kind,
+                                      L1, L2, L3, hs, col, zf, Sf, Pf)
                 mv = nvalid
                 for c in range(mv):
                     zp[c] = zf[idx[c]]
@@ -718,39 +723,45 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                 for j in range(n):
                     for c in range(mv):
                         Pxz[j, c] = Pf[j, idx[c]]
-                Lsub = Ls[:mv, :mv]
-                ok = _cholesky(Sm, Lsub, mv)
+                ok = _cholesky(Sm, Ls, mv)
                 if ok:
                     for c in range(mv):
                         innov[c] = y[b, k, idx[c]] - zp[c]
                         out_nu[b, k, idx[c]] = innov[c] / math.sqrt(Sm[c, c])
-                    _chol_solve(Lsub, innov[:mv], w[:mv], ysol[:mv])
+                    _chol_solve(Ls, innov, w, ysol, mv)
                     nis = 0.0
                     for c in range(mv):
                         nis += innov[c] * w[c]
                     logdet = 0.0
                     for c in range(mv):
-                        logdet += 2.0 * math.log(Lsub[c, c])
+                        logdet += 2.0 * math.log(Ls[c, c])
                     out_ll[b, k] = -0.5 * (nis + logdet + mv * LOG_2PI)
-                    # K = Pxz S^-1 (rows of K solve S K_j^T = Pxz_j^T)
+                    # K = Pxz S^-1: S^-1 from mv solves (not one per state: n >> mv)
+                    for e in range(mv):
+                        for c in range(mv):
+                            prow[c] = 1.0 if c == e else 0.0
+                        _chol_solve(Ls, prow, kcol, ysol, mv)
+                        for c in range(mv):
+                            Sinv[c, e] = kcol[c]
                     for j in range(n):
                         for c in range(mv):
-                            prow[c] = Pxz[j, c]
-                        _chol_solve(Lsub, prow[:mv], kcol[:mv], ysol[:mv])
-                        for c in range(mv):
-                            Kg[j, c] = kcol[c]
+                            acc = 0.0
+                            for e in range(mv):
+                                acc += Pxz[j, e] * Sinv[e, c]
+                            Kg[j, c] = acc
                     for j in range(n):
                         acc = 0.0
                         for c in range(mv):
                             acc += Kg[j, c] * innov[c]
                         z[b, j] += acc
-                    # P -= K S K^T  (= K Pxz^T)
+                    # P -= K S K^T (= K Pxz^T, symmetric: the lower triangle, mirrored)
                     for j in range(n):
-                        for l in range(n):
+                        for l in range(j + 1):
                             acc = 0.0
                             for c in range(mv):
                                 acc += Kg[j, c] * Pxz[l, c]
                             Pm[b, j, l] -= acc
+                            Pm[b, l, j] = Pm[b, j, l]
                     ewnis[b] += nis_alpha * (nis * m / mv - ewnis[b])
             # ---------------- constraints and health checks
             if symmetrise:
@@ -761,7 +772,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                         Pm[b, l, j] = a
             if project_mean and project_internal:
                 if constraint_mode == 1:
-                    _truncate_leaks(z[b], Pm[b], truncate_cov, truncate_min_mass)
+                    _truncate_leaks(row(z, b), matrix(Pm, b), truncate_cov, truncate_min_mass)
                 elif constraint_mode == 2:  # project a negative leak mean to 0 along its regression
                     for j in range(N_MODEL, N_MODEL + 3):
                         if z[b, j] < 0.0 and Pm[b, j, j] > 0.0:
@@ -929,7 +940,7 @@ def model_substeps(dt: float) -> int:
 def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndarray | None = None,
                P0: np.ndarray | None = None, n_steps: np.ndarray | None = None,
                held: np.ndarray | None = None) -> FilterOutput:
-    """Run the batched filter over B runs at once (one step_batch call per time step).
+    """Run the batched filter over B runs at once (one sam.step_batch_inplace call per time step).
 
     ``n_steps`` (B,): filter run b over its first n_steps[b] samples only (its outputs after
     that are NaN, its counts stop); runs of different lengths then share a batch without
