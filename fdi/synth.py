@@ -53,10 +53,11 @@ def input_signal(kind: str, t: np.ndarray, amplitude: float = 3.0, frequency: fl
 
 #: s: the period range of the random extend/hold/retract cycles of the Monte Carlo and the
 #: threshold studies. The issue's 20-60 s cycles are NOT drawn: their long strokes let the K_int
-#: estimate wander (healthy 20 s runs of such cycles false-alarm, 11 of 50 from the encoder, 10 of
-#: 50 from x), and putting them into the studies (session 11: alone, or with "long stroke"
-#: regimes of their own) raised K_int's h to 1.8 sigma s, so that no leak size reached 95 %
-#: (docs/fdi.md, "Long steady strokes").
+#: and offset estimates wander, and putting them into the studies (session 11: alone, or with
+#: "long stroke" regimes of their own) raised K_int's h to 1.8 sigma s, so that no leak size
+#: reached 95 %. Long strokes have a rule of their own instead (fdi.detect.Thresholds.long_stroke_s:
+#: healthy 20 s runs of such cycles false-alarm 3 of 50 from the encoder, 4 of 50 from x, against
+#: 11 and 10 without it; docs/fdi.md, "Long steady strokes").
 CYCLE_PERIOD_S = (2.0, 4.0)
 
 

@@ -40,7 +40,7 @@ import numpy as np
 from sam import P, Plant
 
 from .detect import (HYPOTHESES, MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, PARAMS, REGIMES, Thresholds, held,
-                     own_baseline, regimes)
+                     cusum_drift, long_stroke_mask, own_baseline, regimes)
 from .synth import random_input, simulate_runs
 from .ukf import preset, run_filter
 
@@ -58,6 +58,10 @@ NUISANCE_DURATION = 20.0
 #: of +-1 % offsets found within 1 s; 2 s: 91 / 46 %; 1 s: 96 / 50 %; 0.5 s: 96 / 59 %, the
 #: leaks 0.25 L/min 85-93 % for all (docs/fdi.md, "Long recordings")
 MEMORY_S = 0.5
+#: s: the long-stroke rule the thresholds are derived for (Thresholds.long_stroke_s): from this
+#: long into an extension or retraction until this long into the rest after it, the K_int and
+#: offset CUSUMs count only what exceeds Thresholds.long_stroke_drift
+LONG_STROKE_S = 2.0
 VOTE_ST = 0.5  #: a residual votes for fault f in a regime where ST_f >= this (vote rule "specific")
 #: vote rule "detectable" (default): a residual votes in a regime where the fault's share of it
 #: over the leakage box, sqrt(ST_f Var(Y)), is at least VOTE_SNR healthy spreads sigma (nuisance
@@ -184,7 +188,7 @@ def _nuisance_model(X: np.ndarray, th: Thresholds):
     out = _run_rows(_nuisance_params(X), X[:, -2], X[:, -1], th, duration=th.run_length_s)
     dev, sd, reg, hidden, ready = _dev(out, th)
     return (_regime_stat(dev, reg, hidden, ready, th.warmup_s + th.baseline_s, "rms", th.sample_dt_s),
-            (dev, sd, reg, hidden, ready, _glr_maxima(out, th)))
+            (dev, sd, reg, hidden, ready, _glr_maxima(out, th), long_stroke_mask(out, th)))
 
 
 def _glr_maxima(out, th: Thresholds):
@@ -277,7 +281,8 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
                        filter: str = "shipped", detector: str = "cusum", glr_start_s: float = 0.0,
                        glr_window_s: float = 0.5, vote_rule: str = "detectable",
                        progress: bool = False, sample_dt_s: float = SIM_DT, memory_s: float | None = MEMORY_S,
-                       run_length_s: float = NUISANCE_DURATION) -> tuple[Thresholds, dict]:
+                       run_length_s: float = NUISANCE_DURATION,
+                       long_stroke_s: float | None = LONG_STROKE_S) -> tuple[Thresholds, dict]:
     """Run both studies and derive the thresholds. Returns (thresholds, report). ``vote_rule``
     (:data:`VOTE_RULES`): "detectable" (the default: a residual votes for f where f's share of
     it over the leakage box is at least VOTE_SNR healthy spreads; for the "likelihood"
@@ -288,7 +293,8 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     (:func:`fdi.glr.glr_threshold`, level alpha / 4 per fault hypothesis: Bonferroni over the
     four statistics, the rule of the CUSUM thresholds). ``memory_s``: the CUSUM memory
     (None: the classic CUSUM); ``run_length_s``: the length of the nuisance GSA's healthy runs,
-    over which the false-alarm level ``fa_level`` is stated."""
+    over which the false-alarm level ``fa_level`` is stated; ``long_stroke_s``: the long-stroke
+    rule (Thresholds.long_stroke_s; None: none)."""
     import warnings
 
     from gsa import analyze, saltelli_design
@@ -297,6 +303,8 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
         raise ValueError(f"vote_rule: {vote_rule!r} is not one of {VOTE_RULES}")
     if memory_s is not None and not 0 < memory_s < math.inf:
         raise ValueError(f"memory_s: {memory_s!r} s is not a time constant (> 0, or None for none)")
+    if long_stroke_s is not None and not 0 < long_stroke_s < math.inf:
+        raise ValueError(f"long_stroke_s: {long_stroke_s!r} s is not a duration (> 0, or None for no long-stroke rule)")
     if not MIN_RUN_LENGTH_S <= run_length_s <= MAX_RUN_LENGTH_S:
         raise ValueError(f"run_length_s: {run_length_s!r} s is outside {MIN_RUN_LENGTH_S:g}-{MAX_RUN_LENGTH_S:g} s")
 
@@ -306,7 +314,7 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
         raise ValueError(f"sample_dt_s: {sample_dt_s!r} s is not a whole multiple of the studies' {SIM_DT:g} s step")
     th0 = replace(Thresholds(), drift=drift, filter=filter, detector=detector, glr_start_s=glr_start_s,
                   glr_window_s=glr_window_s, sample_dt_s=sample_factor(sample_dt_s) * SIM_DT,
-                  memory_s=memory_s, run_length_s=run_length_s)
+                  memory_s=memory_s, run_length_s=run_length_s, long_stroke_s=long_stroke_s)
     lp, npb = _problems()
     names = output_names()
     with warnings.catch_warnings():
@@ -326,6 +334,7 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     reg = np.concatenate([p[1][2] for p in parts])
     hidden = np.concatenate([p[1][3] for p in parts])
     ready = np.concatenate([p[1][4] for p in parts])
+    long_stroke = np.concatenate([p[1][6] for p in parts])
 
     # ---- healthy variance per residual and regime (second moment over the A and B blocks)
     iid = np.r_[0:N_nuisance, N_nuisance:2 * N_nuisance]
@@ -370,7 +379,7 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     th1 = replace(th0, sigma=sigma, votes=votes, confusable=[list(c) for c in sorted(confusable)])
 
     # ---- CUSUM thresholds for the stated false-alarm level, from the same healthy runs
-    st = _healthy_statistics(dev, sd, reg, hidden, ready, th1)
+    st = _healthy_statistics(dev, sd, reg, hidden, ready, long_stroke, th1)
     maxima = {h: g.max(axis=1) for h, g in st.items()}
     q = 1.0 - fa_level / len(maxima)
     h = {k: max(level_threshold(v, q), H_FLOOR) for k, v in maxima.items()}
@@ -404,9 +413,10 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     return th, report
 
 
-def _healthy_statistics(dev, sd, reg, hidden, ready, th: Thresholds) -> dict:
+def _healthy_statistics(dev, sd, reg, hidden, ready, long_stroke, th: Thresholds) -> dict:
     """CUSUM statistics of healthy runs given their changes dev (n, 4, T), filter sd, regimes
-    (n, T), held and armed samples (n, 4, T), scored as fdi.detect.statistics scores them."""
+    (n, T), held and armed samples (n, 4, T) and long-stroke samples (n, T), scored as
+    fdi.detect.statistics scores them."""
     from .detect import cusum
 
     warm = int(round(th.warmup_s / th.sample_dt_s))
@@ -416,8 +426,8 @@ def _healthy_statistics(dev, sd, reg, hidden, ready, th: Thresholds) -> dict:
         i = list(PARAMS).index(p)
         sig = np.asarray(th.sigma[p])[reg]
         r = np.where(ready[:, i], sign * dev[:, i] / np.sqrt(sd[:, i] ** 2 + sig**2), 0.0)
-        out[h] = cusum(r, th.drift, th.sample_dt_s, warm, np.asarray(th.votes[p], dtype=bool)[reg] & ~hidden[:, i],
-                       th.memory_s)
+        active = np.asarray(th.votes[p], dtype=bool)[reg] & ~hidden[:, i]
+        out[h] = cusum(r, cusum_drift(p, long_stroke, th), th.sample_dt_s, warm, active, th.memory_s)
     return out
 
 
@@ -464,7 +474,10 @@ def describe(th: Thresholds) -> str:
 
     memory = "none" if th.memory_s is None else f"{th.memory_s:g} s"
     window = f"[{th.warmup_s:g}, {th.warmup_s + th.baseline_s:g}] s"
-    lines = [f"CUSUM drift {th.drift:g} sigma, memory {memory}; baseline over {window}; "
+    long_rule = ("" if th.long_stroke_s is None else
+            f"; K_int and offset drift {th.long_stroke_drift:g} sigma from {th.long_stroke_s:g} s into a "
+            f"stroke until {th.long_stroke_s:g} s into the rest after it")
+    lines = [f"CUSUM drift {th.drift:g} sigma, memory {memory}; baseline over {window}{long_rule}; "
              f"false-alarm level {th.false_alarm_level:g} per {th.run_length_s:g} s run", "",
              "| hypothesis | h [sigma s] |", "|---|---|"]
     lines += [f"| {k} | {v:.3g} |" for k, v in th.h.items()]

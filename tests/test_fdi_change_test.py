@@ -50,6 +50,43 @@ def test_below_drift_resets_like_the_classic_cusum():
         assert g[499] > 0 and g[-1] == 0.0
 
 
+def test_cusum_with_a_drift_per_sample():
+    """A (B, T) drift is applied sample by sample: a constant 3 sigma residual saturates at
+    (3 - 1) memory where the drift is 1 and decays towards 0 where it is 4 (a long stroke),
+    and a 6 sigma residual still climbs to (6 - 4) memory there."""
+    T, memory = 6000, 0.5
+    drift = np.where(np.arange(T) < 3000, 1.0, 4.0)[None, :]
+    g3 = cusum(np.full((1, T), 3.0), drift, DT, 0, None, memory)[0]
+    g6 = cusum(np.full((1, T), 6.0), drift, DT, 0, None, memory)[0]
+    assert g3[2999] == pytest.approx(2.0 * memory, rel=1e-2) and g3[-1] == 0.0
+    assert g6[-1] == pytest.approx(2.0 * memory, rel=1e-2)
+    # a NaN residual (a gap) counts as 0: decays, never jumps
+    r = np.full((1, T), 3.0)
+    r[0, 1000:1100] = np.nan
+    g = cusum(r, drift, DT, 0, None, memory)[0]
+    assert np.all(np.diff(g[1000:1100]) <= 0)
+
+
+def test_long_strokes_mask_in_closed_form():
+    """With S = 2 s the rule covers 2 s into each stroke to its end and the first 2 s of the
+    rest after it, never the next stroke: +3 V 0-5 s, rest 5-10 s, -3 V 10-15 s, then +3 V
+    15-20 s straight away (a reversal) is covered at (2, 7), (12, 15) and (17, 20), so the
+    first 2 s of every stroke, also after a reversal, keep the normal drift."""
+    from fdi.detect import long_strokes
+
+    dt = 0.01
+    t = np.arange(2000) * dt
+    u = np.select([t < 5, t < 10, t < 15], [3.0, 0.0, -3.0], 3.0)[None, :]
+    S = 2.005  # between samples: no boundary rests on rounding
+    m = long_strokes(u, dt, 0.3, S)[0]
+    # the rest is covered until S after the stroke's last sample (4.99 s)
+    want = ((t > S) & (t < 5)) | ((t >= 5) & (t < 5 - dt + S)) | ((t > 10 + S) & (t < 15)) | (t > 15 + S)
+    assert np.array_equal(m, want)
+    # a short cycle (2 s strokes, as in the studies and the tune) is never covered
+    short = np.where(np.mod(t, 4.0) < 2.0, 3.0, -3.0)[None, :]
+    assert not long_strokes(short, dt, 0.3, 2.0).any()
+
+
 def test_thresholds_file_memory_is_validated(tmp_path):
     for bad in ("0", "-1.0", "\"fast\"", "inf", "nan", "true"):
         f = tmp_path / "th.toml"
@@ -63,6 +100,11 @@ def test_thresholds_file_memory_is_validated(tmp_path):
     for bad in ("2.0", "1e9", "\"20\"", "true", "nan"):
         f.write_text(f"[thresholds]\nrun_length_s = {bad}\n")
         with pytest.raises(ValueError, match="run_length_s"):
+            Thresholds.load(f)
+    for key, bad in (("long_stroke_s", "-1"), ("long_stroke_s", "true"), ("long_stroke_drift", "-0.5"),
+                     ("long_stroke_drift", "\"4\""), ("drift", "nan")):
+        f.write_text(f"[thresholds]\n{key} = {bad}\n")
+        with pytest.raises(ValueError, match=key):
             Thresholds.load(f)
 
 
