@@ -386,3 +386,30 @@ def test_revision_rule_on_hand_made_evidence():
     assert iso.decide_pair(bank(20.0), 0, m, early("offset", -0.02)).revised is None  # offset- confirmed
     assert iso.decide_pair(bank(20.0), 0, m, early(None, float("nan"))).revised == "offset"  # resolved
     assert iso.decide_pair(bank(3.0), 0, m, early("K_int", 1e-9)).revised is None  # below the margin
+
+
+def test_a_fault_is_named_only_once_its_filter_has_moved():
+    """decide() on a hand-made bank where K_int leads every other hypothesis by 50 nats from the
+    first sample: its filter's leak is 0 L/min (at the bound: a leak cannot shrink) for the first
+    6 samples, 0.04 L/min for the next 2 (below MIN_SINGLE_SIZE, 0.05 L/min) and 0.3 L/min
+    after: it is named at sample 8, not before; never moved, it is not named at all. An offset
+    counts either way: -0.6 % is named."""
+    L = 12
+    names = tuple(iso.BANK)
+
+    def bank(free_kint, best="K_int", free_best=None):
+        ll = np.zeros((1, len(names), L))
+        ll[0, names.index(best)] = 50.0
+        free = np.zeros((1, len(names), L))
+        free[0, names.index(best)] = free_kint if free_best is None else free_best
+        return iso.BankResult(k0=np.array([1000]), loglik=ll, free=free, free_sd=np.ones((1, len(names), L)),
+                              healthy=np.zeros((1, len(names))), n_valid=np.array([L]), names=names,
+                              start=np.full((1, len(names)), 1000))
+
+    leak = np.r_[np.zeros(6), np.full(2, 0.04), np.full(4, 0.3)] * K_PER_LPM
+    d = iso.decide(bank(leak), 0, 1000, iso.margin_for())
+    assert (d.hypothesis, d.index) == ("K_int", 1008)
+    d = iso.decide(bank(np.zeros(L)), 0, 1000, iso.margin_for())
+    assert d.hypothesis is None
+    d = iso.decide(bank(None, "offset", np.full(L, -0.006)), 0, 1000, iso.margin_for())
+    assert (d.hypothesis, d.index) == ("offset", 1000)
