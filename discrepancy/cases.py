@@ -64,7 +64,7 @@ def reference_and_dither(duration: float, dt: float, rng: np.random.Generator, x
     n = int(round(duration / dt))
     t = np.arange(n) * dt
     ref = np.empty(n)
-    k, level = 0, 0.4 * x_max
+    k = 0
     while k < n:
         hold = int(rng.uniform(1.5, 3.5) / dt)
         target = rng.uniform(0.04, 0.96) * x_max

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sam import P, Plant
+from sam import Plant
 from sam.recording import Recording
 
 from . import locate as loc
-from .data import Prepared, check_same_plant, prepare
+from .data import check_same_plant, prepare
 from .fitting import FitResult, Model, Split, correlation_time, evaluate, fit, segment_delta_bic, segment_rss, segment_scales
 from .library import Free, Hypothesis, calibration_params, format_value, library
 from .simulation import MEAS_PARAMS, SIGNALS, SegmentSimulator, fits
@@ -129,7 +129,6 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     nominal_values = cal_model.values_of(cal_model.theta_of({}))
     th_nom = cal_model.theta_of({})
     cal = fit(split, cal_model, [th_nom], max_nfev=60)
-    rss_nom = float(np.sum(evaluate(split, cal_model, th_nom[None, :], "fit") ** 2))
     calibration = _calibration_changes(calib, nominal_values, cal)
     for c in calibration:
         if c["at_bound"]:

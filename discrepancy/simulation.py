@@ -143,7 +143,6 @@ class SegmentSimulator:
     def initial_states(self, params: np.ndarray, meas: np.ndarray | None = None) -> np.ndarray:
         """(m * n_seg, 7) initial states for m parameter vectors (and measurement-side settings)."""
         d, st = self.data, self.seg.starts
-        sm = d.smooth
         m = params.shape[0]
         ms = self._measured_start(meas, m)
         x0 = np.zeros((m * len(st), 7))
