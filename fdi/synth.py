@@ -56,8 +56,8 @@ def input_signal(kind: str, t: np.ndarray, amplitude: float = 3.0, frequency: fl
 #: and offset estimates wander, and putting them into the studies (session 11: alone, or with
 #: "long stroke" regimes of their own) raised K_int's h to 1.8 sigma s, so that no leak size
 #: reached 95 %. Long strokes have a rule of their own instead (fdi.detect.Thresholds.long_stroke_s:
-#: healthy 20 s runs of such cycles false-alarm 3 of 50 from the encoder, 4 of 50 from x, against
-#: 11 and 10 without it; docs/fdi.md, "Long steady strokes").
+#: held out, 11-17 of 100 healthy 20 s runs of such cycles false-alarm, against 20-32 without
+#: it; docs/fdi.md, "Long steady strokes").
 CYCLE_PERIOD_S = (2.0, 4.0)
 
 
