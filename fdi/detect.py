@@ -402,7 +402,8 @@ def tested_seconds(out: FilterOutput, th: "Thresholds", baseline=None) -> np.nda
 
 
 def residuals(out: FilterOutput, th: "Thresholds | None" = None, baseline=None) -> dict[str, np.ndarray]:
-    """All residuals, name -> (B, T): innovations, absolute r_<hypothesis> and change d_<param>."""
+    """All residuals, name -> (B, T): innovations, absolute r_<hypothesis> and change d_<param>;
+    with thresholds also the regime, the pinned samples and the long-stroke samples (0 / 1)."""
     res = {"nu_pA": out.nu[:, :, 0], "nu_pB": out.nu[:, :, 1], "nu_pos": out.nu[:, :, 2]}
     for name, (j, sign) in HYPOTHESES.items():
         extra = 0.0 if th is None else th.nuisance_sd.get(name.rstrip("+-"), 0.0)
@@ -414,6 +415,7 @@ def residuals(out: FilterOutput, th: "Thresholds | None" = None, baseline=None) 
             res[f"d_{name}"] = r
         res["regime"] = reg.astype(float)
         res["pinned"] = hidden.any(axis=1).astype(float)
+        res["long_stroke"] = long_stroke_mask(out, th).astype(float)
     return res
 
 

@@ -357,6 +357,9 @@ def _figure(path: Path, t, out, res, stats, th, diag) -> None:
     if "pinned" in res and res["pinned"][0].any():  # stalled / end stop: some tests held
         ax3.fill_between(t, 0, 1, where=res["pinned"][0] > 0, transform=ax3.get_xaxis_transform(),
                          color="0.85", label="pinned at supply / tank (tests held)")
+    if "long_stroke" in res and res["long_stroke"][0].any():  # K_int / offset tests count only large excursions
+        ax3.fill_between(t, 0, 1, where=res["long_stroke"][0] > 0, transform=ax3.get_xaxis_transform(),
+                         color="C9", alpha=0.12, label=f"long stroke (K_int, offset: drift {th.long_stroke_drift:g} sigma)")
     ax3.set_ylabel("statistic / threshold")
     ax3.set_xlabel("t [s]")
     ax3.legend(loc="upper left", fontsize=8)

@@ -320,8 +320,10 @@ def test_fault_in_back_to_back_long_strokes_is_found_at_once():
 
     root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
     rec = run_scenario(load_scenario(root / "offset_minus5pct_cycle.toml"))
-    d = replay(rec, load_plant())[3]
+    _, res, _, d, _ = replay(rec, load_plant())
     assert d.thresholds["long_stroke_s"] == 2.0
+    # residuals.csv's long_stroke column is what filter_health counts
+    assert res["long_stroke"][0].sum() * 1e-3 == pytest.approx(d.filter_health["long_stroke_s"], abs=1e-6)
     assert d.status != "healthy" and d.isolated[0] == "offset-"
     assert 2.0 < d.detection_time_s < 2.2
     assert d.size["offset-"]["value"] == pytest.approx(-5.0, abs=0.3)
