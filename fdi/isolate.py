@@ -143,6 +143,9 @@ DECISION_WINDOW_S = 1.0
 #: Stated false-isolation level: the probability, under the model, that the isolated
 #: hypothesis is not the one that produced the data.
 FALSE_ISOLATION_LEVEL = 0.01
+#: Withdrawn alarms after which a run's tests are no longer restarted (each episode costs a
+#: bank over DECISION_WINDOW_S; the run's decision then says the cap was reached).
+MAX_EPISODES = 30
 
 
 def free_states(name: str) -> tuple:
@@ -167,6 +170,12 @@ def margin_level(margin: float, n_hypotheses: int = len(FAULTS)) -> float:
     """The false-isolation level of a margin [nats] (inverse of :func:`margin_for`):
     level = (n - 1) / (n - 1 + e^margin)."""
     return (n_hypotheses - 1) / (n_hypotheses - 1 + math.exp(margin))
+
+
+def confirm_evidence(th) -> float:
+    """The lead [nats] of the best fault over the healthy hypothesis an alarm needs to stand
+    (``Thresholds.confirm_nats``; 0 there: -inf, every alarm stands)."""
+    return th.confirm_nats if th.confirm_nats > 0 else -math.inf
 
 
 def reference_config(base: FilterConfig = REFERENCE) -> FilterConfig:
@@ -267,6 +276,14 @@ class BankResult:
     def hyps(self, i: int) -> tuple:
         """The hypothesis names of run i (axis 1 of the arrays)."""
         return self.names[i] if isinstance(self.names, list) else self.names
+
+    def subset(self, idx) -> "BankResult":
+        """The bank of runs ``idx`` only (every per-run array indexed on its first axis)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        kw = {f: (v[idx] if isinstance(v, np.ndarray) else v) for f, v in vars(self).items()}
+        if isinstance(self.names, list):
+            kw["names"] = [self.names[i] for i in idx]
+        return BankResult(**kw)
 
 
 def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndarray, k1: np.ndarray,
@@ -555,18 +572,34 @@ class Decision:
     revised_size: float = float("nan")
     revised_size_sd: float = float("nan")
     revised_index: int = -1
+    #: the alarm this decision answers (recording sample) and whether it stands: some sample of
+    #: the window from the alarm on has the best fault beating "none" by the confirmation
+    #: evidence (:func:`confirm_evidence`); a decision is only taken at such a sample
+    alarm: int = -1
+    confirmed: bool = True
+    confirm_index: int = -1  #: recording sample of the confirmation (-1: not confirmed)
+    lead_max: float = float("nan")  #: largest lead of the best fault over "none" from the alarm on [nats]
+    window_end: int = -1  #: one past the last recording sample the alarm was judged on
+    #: recording samples of earlier alarms of the run that were withdrawn (not confirmed)
+    withdrawn: list = field(default_factory=list)
+    episodes_capped: bool = False  #: MAX_EPISODES withdrawn alarms: the tests were not restarted again
 
 
-def decide(bank: BankResult, i: int, k_alarm: int, margin: float) -> Decision:
+def decide(bank: BankResult, i: int, k_alarm: int, margin: float, confirm: float = -math.inf) -> Decision:
     """First sample k >= k_alarm at which the best fault hypothesis of bank run i beats every
-    other fault hypothesis by ``margin`` nats (causal: L_H(k) uses samples up to k)."""
+    other fault hypothesis by ``margin`` nats and the healthy one by ``confirm`` nats (causal:
+    L_H(k) uses samples up to k). The decision is confirmed (the alarm stands) if the best fault
+    beats the healthy hypothesis by ``confirm`` at some sample >= k_alarm, isolated or not."""
     names = list(bank.names)
     fi = [names.index(h) for h in FAULTS]
     nv = int(bank.n_valid[i])
     ll = bank.loglik[i][fi, :nv]  # (F, nv)
     start = min(max(0, k_alarm - int(bank.k0[i])), nv - 1)
     srt = np.sort(ll, axis=0)
-    ok = np.flatnonzero((srt[-1, start:] - srt[-2, start:] >= margin) & _credible(bank, i, fi, ll)[start:])
+    lead = srt[-1, start:] - bank.loglik[i, names.index("none"), start:nv]
+    conf = np.flatnonzero(lead >= confirm)
+    ok = np.flatnonzero((srt[-1, start:] - srt[-2, start:] >= margin) & _credible(bank, i, fi, ll)[start:]
+                        & (lead >= confirm))
     at = start + int(ok[0]) if len(ok) else nv - 1
     best = int(np.argmax(ll[:, at]))
     llr = {h: float(ll[q, at] - ll[best, at]) for q, h in enumerate(FAULTS)}
@@ -577,11 +610,13 @@ def decide(bank: BankResult, i: int, k_alarm: int, margin: float) -> Decision:
     size = float(bank.free[i, hb, nv - 1] - bank.healthy[i, hb])
     size_sd = float(bank.free_sd[i, hb, nv - 1])
     onset = int(bank.start[i, hb])
+    k0 = int(bank.k0[i])
+    stands = {"alarm": int(k_alarm), "confirmed": bool(len(conf)), "lead_max": float(lead.max()),
+              "confirm_index": k0 + start + int(conf[0]) if len(conf) else -1}
     if len(ok):
-        return Decision(FAULTS[best], int(bank.k0[i]) + at, [FAULTS[best]], llr, llr_none, int(bank.k0[i]), onset,
-                        size, size_sd)
+        return Decision(FAULTS[best], k0 + at, [FAULTS[best]], llr, llr_none, k0, onset, size, size_sd, **stands)
     cands = [h for h in FAULTS if llr[h] > -margin]
-    return Decision(None, -1, cands, llr, llr_none, int(bank.k0[i]), onset, size, size_sd)
+    return Decision(None, -1, cands, llr, llr_none, k0, onset, size, size_sd, **stands)
 
 
 def _credible(bank: BankResult, i: int, fi: list, ll: np.ndarray) -> np.ndarray:
@@ -671,7 +706,8 @@ def first_alarms(stats: dict, h: dict) -> tuple[np.ndarray, list]:
 
 def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float,
             horizon_s: float | None = None, rows=None, k_stop: int | None = None, size: bool = True,
-            pairs: bool = True, pair_horizon_s: float | None = PAIR_WINDOW_S) -> dict:
+            pairs: bool = True, pair_horizon_s: float | None = PAIR_WINDOW_S, confirm: float = -math.inf,
+            restart=None) -> dict:
     """Run the reference and the bank for every run (of ``rows``) that alarmed, batched;
     returns run -> Decision. A run's window is [k0, end of the record) or, with ``horizon_s``,
     [k0, alarm + horizon_s], never beyond ``k_stop``. In stages, so that the five filters run
@@ -683,16 +719,66 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     ``pairs`` (several faults), every single fault and pair restarted after the alarm
     (:func:`run_pairs`) up to ``pair_horizon_s`` after it (None: the record's end), never
     beyond ``k_stop``, decided by :func:`decide_pair` with the margin of the same level for
-    ten hypotheses."""
+    ten hypotheses (confirmed alarms only).
+
+    ``confirm`` [nats] (:func:`confirm_evidence`): an alarm whose window never has the best fault
+    ahead of the healthy hypothesis by this much is withdrawn. With ``restart``, a function of
+    (B,) restart samples returning the statistics restarted there (:func:`fdi.detect.statistics`
+    with ``start``), the tests of a run whose alarm was withdrawn restart at the end of that
+    window and the next alarm is examined in turn (at most MAX_EPISODES); the run's Decision
+    is the first confirmed one (``withdrawn``: the earlier alarms) or, if none stands, the
+    last withdrawn one (``confirmed`` False)."""
+    decs = _episode(out, stats, h, k_ready, margin, horizon_s, rows, k_stop, size, pairs, pair_horizon_s, confirm)
+    todo = _withdraw(decs, decs)
+    if restart is None:
+        return decs
+    B, T = out.mean.shape[:2]
+    stop = k_stop
+    if np.ndim(k_stop) > 0:  # one per run of ``rows``: looked up by run
+        by_run = dict(zip((np.arange(B) if rows is None else np.asarray(rows)).tolist(), np.asarray(k_stop).tolist()))
+    for _ in range(MAX_EPISODES - 1):
+        start = np.zeros(B, dtype=np.int64)
+        for b in todo:  # the tests restart where the withdrawn alarm's window ended
+            start[b] = decs[b].window_end
+        todo = [b for b in todo if start[b] < T - 1]
+        if not todo:
+            return decs
+        if np.ndim(k_stop) > 0:
+            stop = np.array([by_run[b] for b in todo], dtype=np.int64)
+        nxt = _episode(out, restart(start), h, np.maximum(k_ready, start), margin, horizon_s, todo, stop,
+                       size, pairs, pair_horizon_s, confirm)
+        todo = _withdraw(nxt, decs)
+    for b in todo:
+        decs[b].episodes_capped = True
+    return decs
+
+
+def _withdraw(new: dict, decs: dict) -> list:
+    """Put the decisions ``new`` into ``decs`` (run -> Decision), each carrying the run's earlier
+    withdrawn alarms and its own if it is not confirmed; returns the runs withdrawn again."""
+    for b, d in new.items():
+        d.withdrawn = (decs[b].withdrawn if decs[b] is not d else []) + ([] if d.confirmed else [d.alarm])
+        decs[b] = d
+    return [b for b, d in new.items() if not d.confirmed]
+
+
+def _episode(out: FilterOutput, stats: dict, h: dict, k_ready, margin: float, horizon_s, rows, k_stop,
+             size: bool, pairs: bool, pair_horizon_s, confirm: float) -> dict:
+    """One alarm per run (the first of ``stats``): the stages of :func:`isolate`. ``k_ready``:
+    a sample, or one per run (B,), before which no onset is estimated."""
     dt = float(out.t[1] - out.t[0])
     T = out.mean.shape[1]
     k_alarm, who = first_alarms(stats, h)
     rows = np.arange(len(k_alarm)) if rows is None else np.asarray(rows)
-    rows = np.array([b for b in rows if k_alarm[b] >= 0], dtype=np.int64)
+    keep = k_alarm[rows] >= 0 if len(rows) else np.zeros(0, bool)
+    rows = rows[keep].astype(np.int64)
     if not len(rows):
         return {}
+    if np.ndim(k_stop) > 0:
+        k_stop = np.asarray(k_stop)[keep]
+    ready = np.broadcast_to(np.asarray(k_ready, dtype=np.int64), k_alarm.shape)
     ka = k_alarm[rows]
-    k0 = np.array([onset_index(stats[who[b]][b], int(k_alarm[b]), k_ready, dt) for b in rows], dtype=np.int64)
+    k0 = np.array([onset_index(stats[who[b]][b], int(k_alarm[b]), int(ready[b]), dt) for b in rows], dtype=np.int64)
     k1 = np.full(len(rows), T, dtype=np.int64)
     if horizon_s is not None:
         k1 = np.minimum(T, ka + int(round(horizon_s / dt)) + 1)
@@ -703,14 +789,17 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     kd = earliest_decision(ka, k0, dt)
     k_a1 = np.minimum(kd + 1, k1)  # stage 1: up to and including the first sample it may decide at
     bank = run_bank_starts(out, ref, rows, k0, k_a1, ka)
-    decs = [decide(bank, i, int(kd[i]), margin) for i in range(len(rows))]
+    decs = [decide(bank, i, int(kd[i]), margin, confirm) for i in range(len(rows))]
     seeds = [start_seed(bank, i, d.onset) for i, d in enumerate(decs)]  # of the decided filter
     late = np.array([i for i, d in enumerate(decs) if d.hypothesis is None and k1[i] > k_a1[i]], dtype=np.int64)
     if len(late):  # stage 2: the undecided runs over their whole window
         bank2 = run_bank_starts(out, ref, rows[late], k0[late], k1[late], ka[late], ref_rows=late)
         for q, i in enumerate(late):
-            decs[i] = decide(bank2, q, int(kd[i]), margin)
+            decs[i] = decide(bank2, q, int(kd[i]), margin, confirm)
             seeds[i] = start_seed(bank2, q, decs[i].onset)
+    for i, d in enumerate(decs):
+        d.alarm = int(ka[i])
+        d.window_end = int(k1[i])
     if size:  # stage 3: the decided hypothesis alone from its onset estimate over the whole window
         for name in FAULTS:
             sel = np.array([i for i, d in enumerate(decs) if d.hypothesis == name and k1[i] > k_a1[i]], dtype=np.int64)
@@ -723,15 +812,16 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
                     nv = int(one.n_valid[q])
                     decs[i].size = float(one.free[q, 0, nv - 1] - one.healthy[q, 0])
                     decs[i].size_sd = float(one.free_sd[q, 0, nv - 1])
-    if pairs:  # stage 4: every single and pair, restarted after the alarm, one call
-        kp = np.full(len(rows), T, dtype=np.int64)
+    sel = np.array([i for i, d in enumerate(decs) if d.confirmed], dtype=np.int64)
+    if pairs and len(sel):  # stage 4: every single and pair, restarted after the alarm, one call
+        kp = np.full(len(sel), T, dtype=np.int64)
         if pair_horizon_s is not None:
-            kp = np.minimum(T, ka + int(round(pair_horizon_s / dt)) + 1)
+            kp = np.minimum(T, ka[sel] + int(round(pair_horizon_s / dt)) + 1)
         if k_stop is not None:
-            kp = np.minimum(kp, k_stop)
-        pb = run_pairs(out, ref, bank, rows, kp, [best_single(d) for d in decs])
-        for i, d in enumerate(decs):
-            decide_pair(pb, i, margin_for(margin_level(margin), len(MULTI)), d)
+            kp = np.minimum(kp, k_stop if np.ndim(k_stop) == 0 else np.asarray(k_stop)[sel])
+        pb = run_pairs(out, ref, bank.subset(sel), rows[sel], kp, [best_single(decs[i]) for i in sel])
+        for q, i in enumerate(sel):
+            decide_pair(pb, q, margin_for(margin_level(margin), len(MULTI)), decs[i])
     return {int(b): decs[i] for i, b in enumerate(rows)}
 
 

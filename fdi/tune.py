@@ -57,8 +57,9 @@ ONSET = ONSET_MIN  #: the nominal onset of healthy runs (their windows are not s
 REFERENCE_S = 4.0  #: s, length of the healthy reference recording of ``--reference``
 #: chunk file tag: "r" = random onset, per-run k_onset saved (session 8); "s" = the same with the
 #: tests held where pinned pressures hide them and the session-9 thresholds (an older folder's
-#: chunks are not mixed in); "t": healthy runs of the thresholds' run_length_s (session 11)
-CHUNK_VERSION = "t"
+#: chunks are not mixed in); "t": healthy runs of the thresholds' run_length_s (session 11);
+#: "u": every alarm judged by the bank, withdrawn unless confirmed (conf_k, session 14)
+CHUNK_VERSION = "u"
 LOAD_BINS = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))
 HYP = tuple(HYPOTHESES)
 MANIFEST = "tune.json"  #: the settings the folder's chunks were made with (:func:`manifest`)
@@ -67,6 +68,8 @@ MANIFEST = "tune.json"  #: the settings the folder's chunks were made with (:fun
 OUTPUTS = ("metrics.md", "metrics.json", "thresholds_used.json", "roc.png")
 #: chunk keys every mode writes (a chunk without one of them is damaged)
 CHUNK_KEYS = ("first", "max", "m_L", "k_onset")
+#: chunk keys of likelihood isolation (:func:`_bank_decisions`)
+BANK_KEYS = ("iso_h", "iso_k", "conf_k", "n_withdrawn")
 #: per fault type: colormap (one shade per size), line style and marker of its ROC curves
 ROC_STYLE = {"K_int": ("Blues", "-", "o"), "K_extA": ("Greens", "--", "s"), "K_extB": ("Oranges", "-.", "^"),
              "offset+": ("Purples", ":", "D"), "offset-": ("Reds", (0, (5, 1, 1, 1)), "v")}
@@ -99,7 +102,7 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, reference: bo
     res = _window_maxima(st, th, k0)
     res.update({"m_L": runs.truth["m_L_kg"], "resets": out.n_cov_reset, "k_onset": k0})
     if th.isolation == "likelihood":
-        res.update(_bank_decisions(out, st, th, res["first"], k0, fault is not None))
+        res.update(_bank_decisions(out, st, th, k0, fault is not None))
     if bound:
         k_b = k0 if fault is not None else np.round(draw_onsets(n, seed) / DT).astype(np.int64)
         res["evidence"] = onset_bound.onset_evidence(out, k_b)
@@ -151,37 +154,39 @@ def _alarm_statistics(out, th: Thresholds):
             replace(th, h={names.get(k, k): v for k, v in th.glr_h.items()}))
 
 
-def _bank_decisions(out, st, th: Thresholds, first: np.ndarray, k_onset: np.ndarray,
-                    faulty: bool) -> dict:
+def _bank_decisions(out, st, th: Thresholds, k_onset: np.ndarray, faulty: bool) -> dict:
     """Likelihood isolation, per run: the isolated hypothesis (index in HYP, -1: none or not
-    isolable) and the sample of the decision (-1: none).
+    isolable), the sample of the decision (-1: none), and the first alarm that stood (the
+    bank confirmed it, ``th.confirm_nats``; -1: none) and the number of withdrawn alarms.
 
-    Computed only where it can change a metric: in fault runs whose first alarm is within
-    [onset, onset + 1 s] of the run's own onset, with the run's data cut at onset + 1 s.
-    (Healthy runs count any alarm; a decision is causal, tests/test_fdi_isolate.py, so the
-    cut changes no decision that counts, and the bank then costs about the filter's time
-    again instead of three times. The several-faults stage is not run: its verdict comes
-    isolate.PAIR_WINDOW_S after the alarm, after the 1 s the tune scores.)"""
+    Every alarmed run goes through :func:`fdi.isolate.isolate` as replay runs it: the bank over
+    DECISION_WINDOW_S after each alarm, withdrawn alarms restarting the tests, until one
+    stands. Fault runs are cut at onset + 1 s (a decision is causal, tests/test_fdi_isolate.py,
+    so the cut changes no decision that counts; the bank then costs about the filter's time
+    again instead of three times). The several-faults stage is not run: its verdict comes
+    isolate.PAIR_WINDOW_S after the alarm, after the 1 s the tune scores."""
     n = out.mean.shape[0]
-    iso_h = np.full(n, -1, dtype=np.int64)
-    iso_k = np.full(n, -1, dtype=np.int64)
-    k_on = np.asarray(k_onset, dtype=np.int64)
-    k_end = k_on + int(round(1.0 / DT))
-    any_first = np.where(first >= 0, first, np.iinfo(np.int64).max).min(axis=1)
-    rows = np.flatnonzero((any_first >= k_on) & (any_first <= k_end)) if faulty else np.array([], dtype=np.int64)
-    # isolate.isolate keeps the rows (in order) whose first alarm it finds; its k_stop may be an
-    # array over those rows (it is only used in np.minimum), so align it with them
+    res = {key: np.full(n, -1, dtype=np.int64) for key in ("iso_h", "iso_k", "conf_k")}
+    res["n_withdrawn"] = np.zeros(n, dtype=np.int64)
+    k_end = np.asarray(k_onset, dtype=np.int64) + int(round(1.0 / DT))
     k_alarm, _ = isolate.first_alarms(st, th.h)
-    rows = rows[k_alarm[rows] >= 0]
-    if len(rows):
-        k_ready = int(round((th.warmup_s + th.baseline_s) / DT))
-        decs = isolate.isolate(out, st, th.h, k_ready, isolate.margin_for(th.false_isolation_level),
-                               rows=rows, k_stop=k_end[rows] + 1, size=False, pairs=False)
-        for b, d in decs.items():
-            if d.hypothesis is not None:
-                iso_h[b] = HYP.index(isolate.hypothesis_name(d.hypothesis, d.size))
-                iso_k[b] = d.index
-    return {"iso_h": iso_h, "iso_k": iso_k}
+    rows = np.flatnonzero(k_alarm >= 0)
+    if not len(rows):
+        return res
+    k_ready = int(round((th.warmup_s + th.baseline_s) / DT))
+    restart = None if th.detector == "glr" else (lambda start: statistics(out, th, None, start))
+    decs = isolate.isolate(out, st, th.h, k_ready, isolate.margin_for(th.false_isolation_level),
+                           horizon_s=isolate.DECISION_WINDOW_S, rows=rows,
+                           k_stop=k_end[rows] + 1 if faulty else None, size=False, pairs=False,
+                           confirm=isolate.confirm_evidence(th), restart=restart)
+    for b, d in decs.items():
+        res["n_withdrawn"][b] = len(d.withdrawn)
+        if d.confirmed:
+            res["conf_k"][b] = d.alarm
+        if d.hypothesis is not None:
+            res["iso_h"][b] = HYP.index(isolate.hypothesis_name(d.hypothesis, d.size))
+            res["iso_k"][b] = d.index
+    return res
 
 
 def _jobs(n_runs: int):
@@ -425,7 +430,7 @@ def _chunk_path(chunk_dir: Path, job, tag: str = CHUNK_VERSION) -> Path:
 
 def _load(chunk_dir, jobs, name, tag: str = CHUNK_VERSION):
     parts = [np.load(_chunk_path(chunk_dir, j, tag)) for j in jobs if j[0] == name]
-    keys = ("first", "max", "m_L", "k_onset") + (("iso_h", "iso_k") if all("iso_h" in p for p in parts) else ()) \
+    keys = ("first", "max", "m_L", "k_onset") + (BANK_KEYS if all("conf_k" in p for p in parts) else ()) \
         + (("evidence",) if all("evidence" in p for p in parts) else ())
     return {k: np.concatenate([p[k] for p in parts]) for k in keys}
 
@@ -440,7 +445,9 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
     chunk_dir = Path(out_dir) / "chunks"
     healthy = _load(chunk_dir, jobs, "healthy", tag)
     hmax = healthy["max"][:, :, 2].max(axis=1)  # per run: max over hypotheses of g/h
-    fa_runs = hmax > 1.0
+    trigger_runs = hmax > 1.0
+    # a false alarm is an alarm that stood (confirmed by the bank) when the chunks have them
+    fa_runs = healthy["conf_k"] >= 0 if "conf_k" in healthy else trigger_runs
     fa = float(fa_runs.mean())
     hb = _load_bin(healthy["m_L"])
     fa_by_load = [float(fa_runs[hb == i].mean()) if (hb == i).any() else float("nan") for i in range(len(LOAD_BINS))]
@@ -464,6 +471,7 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
     n_dec = sum(r["decisions_within_1s"] for r in rows)
     n_wrong = sum(r["wrong_decisions"] for r in rows)
     metrics = {"false_alarm_rate": fa, "false_alarm_by_load": fa_by_load, "healthy_runs": int(len(hmax)),
+               "trigger_rate": float(trigger_runs.mean()),
                "healthy_run_s": run_seconds(th, None), "fault_run_s": DURATION,
                "load_bins_kg": LOAD_BINS, "thresholds_source": th.source, "isolation": th.isolation, "rows": rows,
                "isolation_decisions_within_1s": n_dec, "wrong_isolation_decisions": n_wrong,
@@ -488,7 +496,8 @@ def _fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
     another fault hypothesis: the rate the stated false-isolation level is about."""
     k0 = d["k_onset"]  # (runs,) each run's own onset
     first = np.where(d["first"] >= 0, d["first"], 10**9)
-    any_alarm = first.min(axis=1)
+    # the first alarm that stood (the bank confirmed it) when the chunks have them, else any alarm
+    any_alarm = np.where(d["conf_k"] >= 0, d["conf_k"], 10**9) if "conf_k" in d else first.min(axis=1)
     before = any_alarm < k0  # alarm before the onset: a false alarm, not a detection
     detected = (any_alarm < 10**9) & ~before
     within = detected & ((any_alarm - k0) * DT <= 1.0)
@@ -589,9 +598,11 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
              f"Thresholds: {th.source} (not fitted to these runs).", "",
              *([f"Every machine was first calibrated on a healthy {REFERENCE_S:g} s reference recording of its own (another "
                  "load and input): `--reference`, as `fdi replay --reference` does.", ""] if reference else []),
-             f"Held-out healthy runs: {m['healthy_runs']} x {run_seconds(th, None):g} s; false-alarm rate (any alarm per run): "
+             f"Held-out healthy runs: {m['healthy_runs']} x {run_seconds(th, None):g} s; false-alarm rate (any alarm "
+             f"{'that the bank confirmed ' if likelihood and th.confirm_nats > 0 else ''}per run): "
              f"{m['false_alarm_rate']:.3f}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"
-                                                                  for b, v in zip(bins, m["false_alarm_by_load"])), "",
+                                                                  for b, v in zip(bins, m["false_alarm_by_load"]))
+             + f"; runs with any CUSUM alarm (confirmed or withdrawn): {m['trigger_rate']:.3f}", "",
              f"Isolation decisions within 1 s of the onset (fault runs detected within 1 s): "
              f"{m['isolation_decisions_within_1s']}, of which wrong (named another fault hypothesis): "
              f"{m['wrong_isolation_decisions']}" + (f" = {wr:.3f}" if math.isfinite(wr) else ""), "",

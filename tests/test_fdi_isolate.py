@@ -415,3 +415,65 @@ def test_a_fault_is_named_only_once_its_filter_has_moved():
     assert d.hypothesis is None
     d = iso.decide(bank(None, "offset", np.full(L, -0.006)), 0, 1000, iso.margin_for())
     assert (d.hypothesis, d.index) == ("offset", 1000)
+
+
+def test_an_alarm_stands_only_when_the_bank_confirms_it():
+    """decide() with the confirmation evidence (Thresholds.confirm_nats) on a hand-made bank:
+    K_int leads every other fault hypothesis by 50 nats from the first sample, and the healthy
+    hypothesis by 3 nats for 7 samples, then by 30. With 10 nats needed the alarm stands at
+    sample 7 and K_int is named there, not before; with 40 nats it is withdrawn (not confirmed,
+    nothing named, the largest lead 30 nats); with no confirmation it is named at once."""
+    L = 12
+    names = tuple(iso.BANK)
+    ll = np.zeros((1, len(names), L))
+    ll[0, names.index("K_int")] = 50.0
+    ll[0, names.index("none")] = 50.0 - np.r_[np.full(7, 3.0), np.full(5, 30.0)]
+    free = np.zeros((1, len(names), L))
+    free[0, names.index("K_int")] = 0.3 * K_PER_LPM
+    bank = iso.BankResult(k0=np.array([1000]), loglik=ll, free=free, free_sd=np.ones((1, len(names), L)),
+                          healthy=np.zeros((1, len(names))), n_valid=np.array([L]), names=names,
+                          start=np.full((1, len(names)), 1000))
+    d = iso.decide(bank, 0, 1000, iso.margin_for(), confirm=10.0)
+    assert (d.hypothesis, d.index, d.confirmed, d.confirm_index) == ("K_int", 1007, True, 1007)
+    d = iso.decide(bank, 0, 1000, iso.margin_for(), confirm=40.0)
+    assert (d.hypothesis, d.confirmed, d.confirm_index, d.lead_max) == (None, False, -1, 30.0)
+    d = iso.decide(bank, 0, 1000, iso.margin_for())
+    assert (d.hypothesis, d.index, d.confirmed) == ("K_int", 1000, True)
+
+
+def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
+    """The episode loop of isolate.isolate, end to end through diagnose(): change tests made far
+    too sensitive (no drift, h / 20) alarm on a healthy run again and again (at about 1.7, 3.0,
+    4.1, 5.1, 6.1 and 7.9 s); the bank withdraws
+    every alarm (no fault beats the healthy hypothesis by Thresholds.confirm_nats), the tests
+    restart after each window and the run is "healthy", its note listing the withdrawn alarms.
+    The same machine with a 1 L/min K_extA stepping in at 6 s: the alarms before 6 s are
+    withdrawn, the first one after it stands and names K_extA. With confirm_nats = 0 (every
+    alarm stands) the healthy run is a fault."""
+    from dataclasses import replace
+
+    from fdi.detect import Thresholds, diagnose, statistics
+    from fdi.ukf import preset
+
+    shipped = Thresholds.shipped()
+    th = replace(shipped, drift=0.0, long_stroke_s=None, h={k: v / 20 for k, v in shipped.h.items()},
+                 several_faults=False)
+    p = load_plant().vector()
+    t = np.arange(int(8.0 / DT) + 1) * DT
+    u = input_signal("sine", t, amplitude=3.0, frequency=0.25)
+    leak = np.stack([np.zeros(len(t)), profile("step", lpm(1.0), t, t0=6.0)])
+    runs = simulate_runs(np.tile(p, (2, 1)), u, DT, faults={"K_extA": leak}, seed=5)
+    out = run_filter(runs.inp, preset(th.filter))
+    stats = statistics(out, th)
+    healthy = diagnose(out, th, 0, stats)
+    assert healthy.status == "healthy"
+    withdrawn = healthy.likelihood["withdrawn_alarms_s"]
+    assert len(withdrawn) >= 2 and withdrawn == sorted(withdrawn)
+    assert all(b - a >= iso.DECISION_WINDOW_S for a, b in zip(withdrawn, withdrawn[1:]))  # restarted after each window
+    assert healthy.detection_time_s is None and "withdrawn" in healthy.note
+    faulty = diagnose(out, th, 1, stats)
+    assert faulty.status == "fault" and faulty.isolated == ["K_extA"]
+    assert all(s < 6.0 for s in faulty.likelihood["withdrawn_alarms_s"])
+    assert 6.0 <= faulty.detection_time_s < 6.5 and faulty.likelihood["alarm_s"] == faulty.detection_time_s
+    assert faulty.likelihood["confirmed_s"] >= faulty.detection_time_s
+    assert diagnose(out, replace(th, confirm_nats=0.0), 0, stats).status != "healthy"

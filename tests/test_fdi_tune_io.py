@@ -36,7 +36,8 @@ def _fake_chunk(plant, th, fault, size, n, seed, reference=False, bound=False):
         if (fault, size) == ("K_int", 0.5):
             iso_h[0] = tune.HYP.index("K_extA")
     res = {"first": first, "max": np.zeros((n, H, 3)), "m_L": rng.uniform(0, 800, n), "resets": np.zeros(n),
-           "k_onset": k0, "iso_h": iso_h, "iso_k": np.where(iso_h >= 0, k0 + 150, -1)}
+           "k_onset": k0, "iso_h": iso_h, "iso_k": np.where(iso_h >= 0, k0 + 150, -1),
+           "conf_k": np.where(iso_h >= 0, k0 + 100, -1), "n_withdrawn": np.zeros(n, dtype=np.int64)}
     if bound:
         res["evidence"] = rng.uniform(0, 10, (n, 5))
     return res
@@ -203,7 +204,8 @@ def test_metrics_json_is_valid_json_with_wrong_isolation(tmp_path):
     jobs, tag = _hand_made_folder(tmp_path, False)
     path = tune._chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "K_extB_0.1"), tag)
     d = dict(np.load(path))
-    d["first"][:] = -1  # never alarmed: no delay to average
+    for key in ("first", "conf_k", "iso_h", "iso_k"):  # never alarmed: no delay to average
+        d[key][:] = -1
     np.savez(path, **d)
     tune.analyse(tmp_path, jobs, Thresholds.shipped(), tag)
     text = (tmp_path / "metrics.json").read_text()
@@ -214,6 +216,31 @@ def test_metrics_json_is_valid_json_with_wrong_isolation(tmp_path):
     assert rows[("K_int", 1.0)]["wrong_isolation"] == 0.0
     assert (m["isolation_decisions_within_1s"], m["wrong_isolation_decisions"]) == (16 * 5, 1)
     assert m["wrong_isolation_rate"] == pytest.approx(1 / 80)
+
+
+def test_withdrawn_alarms_are_not_false_alarms(tmp_path):
+    """Healthy runs whose CUSUM alarmed (g/h above 1) count as false alarms only when the bank
+    confirmed the alarm (conf_k >= 0): of 3 alarmed runs 1 stood -> false-alarm rate 1 / n, the
+    trigger rate 3 / n; metrics.md gives both. A fault run whose only confirmed alarm is 1.5 s
+    after the onset is not detected within 1 s, whatever its CUSUM did."""
+    jobs, tag = _hand_made_folder(tmp_path, False)
+    healthy = [j for j in jobs if j[0] == "healthy"]
+    path = tune._chunk_path(tmp_path / "chunks", healthy[0], tag)
+    d = dict(np.load(path))
+    d["max"][:3, 0, 2] = 2.0  # three CUSUM alarms ...
+    d["conf_k"][0] = 5000  # ... one of which the bank confirmed
+    np.savez(path, **d)
+    path = tune._chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "K_extA_1"), tag)
+    d = dict(np.load(path))
+    d["conf_k"][0] = d["k_onset"][0] + 1500
+    np.savez(path, **d)
+    m = tune.analyse(tmp_path, jobs, Thresholds.shipped(), tag)
+    n = m["healthy_runs"]
+    assert m["false_alarm_rate"] == pytest.approx(1 / n) and m["trigger_rate"] == pytest.approx(3 / n)
+    row = next(r for r in m["rows"] if (r["fault"], r["size"]) == ("K_extA", 1.0))
+    assert row["detected_within_1s"] == pytest.approx(1 - 1 / row["runs"])
+    md = (tmp_path / "metrics.md").read_text()
+    assert f"that the bank confirmed per run): {1 / n:.3f}" in md and f"withdrawn): {3 / n:.3f}" in md
 
 
 def test_metrics_md_tables_with_units_and_no_exclusive_column(tmp_path):
