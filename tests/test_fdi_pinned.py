@@ -12,7 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sam import P, load_plant
-from fdi.detect import (MIN_BASELINE_S, PARAMS, Thresholds, baseline_window, diagnose, held, pinned)
+from fdi.detect import (MIN_BASELINE_S, PARAMS, Thresholds, baseline_window, diagnose, held, pinned,
+                        resting_on_stop)
 from fdi.synth import simulate_runs
 from fdi.ukf import POS_X, FilterInput, FilterOutput, run_filter
 
@@ -45,6 +46,26 @@ def test_end_stop_creep_is_held_not_alarmed():
     hidden = held(out, th)[0][:, int(2 / DT):].all(axis=1)
     assert dict(zip(PARAMS, hidden)) == {"K_int": False, "K_extA": True, "K_extB": False, "offset": True}
     assert diagnose(out, th, 0).status == "healthy"
+
+
+def test_offset_test_is_held_while_resting_on_the_extension_stop():
+    """Nominal plant, 494 kg, from x = 0.42 m: 3 V for 1 s drives the piston onto the extension
+    end stop (the joint limit theta_max, x = 0.4374 m, before the 0.545 m stroke), then the valve
+    input is 0 for 3 s. resting_on_stop is True from shortly after the input drops until the end
+    (the piston blocked, the spool at null) and never while the valve is open; held() holds only
+    the offset there (the pressures are not pinned: A settles near 6.6 MPa, B near 3.7), and
+    filter_health reports the time."""
+    p = load_plant().vector()
+    t = np.arange(4001) * DT
+    u = np.where(t < 1.0, 3.0, 0.0)
+    out = run_filter(simulate_runs(p[None], u, DT, seed=4, x0=0.42).inp)
+    th = Thresholds.shipped()
+    rest = resting_on_stop(out, th)[0]
+    assert not rest[t < 1.0].any() and rest[t >= 1.1].all()
+    assert out.mean[0, -1, 4] == pytest.approx(0.4374, abs=1e-3)
+    hidden = held(out, th)[0][:, t >= 1.1].all(axis=1)
+    assert dict(zip(PARAMS, hidden)) == {"K_int": False, "K_extA": False, "K_extB": False, "offset": True}
+    assert diagnose(out, th, 0).filter_health["resting_on_stop_s"] == pytest.approx(rest.sum() * DT)
 
 
 @pytest.mark.slow
