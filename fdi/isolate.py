@@ -740,7 +740,8 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
         start = np.zeros(B, dtype=np.int64)
         for b in todo:  # the tests restart where the withdrawn alarm's window ended
             start[b] = decs[b].window_end
-        todo = [b for b in todo if start[b] < T - 1]
+        end = {b: T if k_stop is None else (by_run[b] if np.ndim(k_stop) > 0 else k_stop) for b in todo}
+        todo = [b for b in todo if start[b] < min(T, end[b]) - 1]
         if not todo:
             return decs
         if np.ndim(k_stop) > 0:

@@ -157,7 +157,8 @@ def _alarm_statistics(out, th: Thresholds):
 def _bank_decisions(out, st, th: Thresholds, k_onset: np.ndarray, faulty: bool) -> dict:
     """Likelihood isolation, per run: the isolated hypothesis (index in HYP, -1: none or not
     isolable), the sample of the decision (-1: none), and the first alarm that stood (the
-    bank confirmed it, ``th.confirm_nats``; -1: none) and the number of withdrawn alarms.
+    bank confirmed it, ``th.confirm_nats``; -1: none; in a fault run a first alarm after onset +
+    1 s is not judged and counts as it stands) and the number of withdrawn alarms.
 
     Every alarmed run goes through :func:`fdi.isolate.isolate` as replay runs it: the bank over
     DECISION_WINDOW_S after each alarm, withdrawn alarms restarting the tests, until one
@@ -170,7 +171,11 @@ def _bank_decisions(out, st, th: Thresholds, k_onset: np.ndarray, faulty: bool) 
     res["n_withdrawn"] = np.zeros(n, dtype=np.int64)
     k_end = np.asarray(k_onset, dtype=np.int64) + int(round(1.0 / DT))
     k_alarm, _ = isolate.first_alarms(st, th.h)
-    rows = np.flatnonzero(k_alarm >= 0)
+    # a fault run whose first alarm comes after onset + 1 s cannot count within 1 s: not judged
+    # (the bank would cost for nothing), its alarm taken as it stands (for the mean delay)
+    late = faulty & (k_alarm > k_end)
+    res["conf_k"][late] = k_alarm[late]
+    rows = np.flatnonzero((k_alarm >= 0) & ~late)
     if not len(rows):
         return res
     k_ready = int(round((th.warmup_s + th.baseline_s) / DT))
