@@ -723,8 +723,8 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
 
     ``confirm`` [nats] (:func:`confirm_evidence`): an alarm whose window never has the best fault
     ahead of the healthy hypothesis by this much is withdrawn. With ``restart``, a function of
-    (B,) restart samples returning the statistics restarted there (:func:`fdi.detect.statistics`
-    with ``start``), the tests of a run whose alarm was withdrawn restart at the end of that
+    (B,) restart samples returning the statistics restarted there
+    (:func:`fdi.detect.restarted_statistics`), the tests of a run whose alarm was withdrawn restart at the end of that
     window and the next alarm is examined in turn (at most MAX_EPISODES); the run's Decision
     is the first confirmed one (``withdrawn``: the earlier alarms) or, if none stands, the
     last withdrawn one (``confirmed`` False)."""

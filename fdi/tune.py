@@ -42,7 +42,7 @@ from sam.errors import output_folder
 
 from . import bound as onset_bound
 from . import calibration, isolate
-from .detect import HYPOTHESES, Thresholds, statistics
+from .detect import HYPOTHESES, Thresholds, restarted_statistics, statistics
 from .montecarlo import make_batch, make_reference_batch
 from .ukf import preset, run_filter
 
@@ -179,7 +179,7 @@ def _bank_decisions(out, st, th: Thresholds, k_onset: np.ndarray, faulty: bool) 
     if not len(rows):
         return res
     k_ready = int(round((th.warmup_s + th.baseline_s) / DT))
-    restart = None if th.detector == "glr" else (lambda start: statistics(out, th, None, start))
+    restart = None if th.detector == "glr" else restarted_statistics(out, th)
     decs = isolate.isolate(out, st, th.h, k_ready, isolate.margin_for(th.false_isolation_level),
                            horizon_s=isolate.DECISION_WINDOW_S, rows=rows,
                            k_stop=k_end[rows] + 1 if faulty else None, size=False, pairs=False,

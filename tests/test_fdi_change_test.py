@@ -191,3 +191,28 @@ def test_shipped_healthy_scenarios_are_healthy_from_the_encoder_alone(scenario):
     sig = {k: v for k, v in rec.signals.items() if k != "x"}
     d = replay(Recording(rec.t, sig, {}, rec.metadata, "s"), load_plant())[3]
     assert d.status == "healthy", d.alarms
+
+
+def test_restarted_tests_relearn_the_baseline():
+    """restarted_statistics: a healthy 5 s run (nominal plant, sine) whose K_int estimate is
+    lifted by 1 L/min from 2.5 s on (as if it had wandered there). Restarted at 3.5 s with the old
+    baseline the K_int test alarms again at once (within 0.2 s); restarted with the baseline
+    re-learnt over the 0.5 s before 3.5 s it stays far below h for the rest of the run; either
+    way g is 0 before the run's start."""
+    from sam import load_plant
+    from fdi.detect import restarted_statistics, statistics
+    from fdi.synth import input_signal, simulate_runs
+    from fdi.ukf import I_KINT, K_PER_LPM, preset, run_filter
+
+    th = Thresholds.shipped()
+    t = np.arange(5001) * DT
+    p = load_plant().vector()
+    out = run_filter(simulate_runs(np.tile(p, (2, 1)), input_signal("sine", t, amplitude=3.0, frequency=0.5), DT,
+                                   seed=8).inp, preset(th.filter))
+    out.mean[:, t >= 2.5, I_KINT] += 1.0 * K_PER_LPM
+    start = np.array([3500, 0])
+    plain = statistics(out, th, None, start)["K_int"]
+    relearnt = restarted_statistics(out, th)(start)["K_int"]
+    assert (plain[0, 3500:3700] > th.h["K_int"]).any()
+    assert relearnt[0, 3500:].max() < 0.1 * th.h["K_int"]
+    assert not relearnt[0, :3500].any() and not plain[0, :3500].any()

@@ -448,7 +448,8 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     every alarm (no fault beats the healthy hypothesis by Thresholds.confirm_nats), the tests
     restart after each window and the run is "healthy", its note listing the withdrawn alarms.
     The same machine with a 1 L/min K_extA stepping in at 6 s: the alarms before 6 s are
-    withdrawn, the first one after it stands and names K_extA. With confirm_nats = 0 (every
+    withdrawn (each restart re-learns the baseline), the one at the onset stands, confirmed by
+    the data after 6 s, and names K_extA. With confirm_nats = 0 (every
     alarm stands) the healthy run is a fault."""
     from dataclasses import replace
 
@@ -474,6 +475,8 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     faulty = diagnose(out, th, 1, stats)
     assert faulty.status == "fault" and faulty.isolated == ["K_extA"]
     assert all(s < 6.0 for s in faulty.likelihood["withdrawn_alarms_s"])
-    assert 6.0 <= faulty.detection_time_s < 6.5 and faulty.likelihood["alarm_s"] == faulty.detection_time_s
-    assert faulty.likelihood["confirmed_s"] >= faulty.detection_time_s
+    # the alarm that stands may come a hair before the onset (these tests alarm every second),
+    # but only the fault's data confirm it
+    assert 5.9 <= faulty.detection_time_s < 6.5 and faulty.likelihood["alarm_s"] == faulty.detection_time_s
+    assert 6.0 < faulty.likelihood["confirmed_s"] < 7.0
     assert diagnose(out, replace(th, confirm_nats=0.0), 0, stats).status != "healthy"
