@@ -543,6 +543,22 @@ def restarted_statistics(out: FilterOutput, th: Thresholds, baseline=None):
     return restart
 
 
+def detector_statistics(out: FilterOutput, th: Thresholds, diag: "Diagnosis", baseline=None, b: int = 0) -> dict:
+    """The statistics of run b, name -> (1, T), as the detector ran them: after each withdrawn
+    alarm restarted, their baseline re-learnt (``diag.likelihood["tests_restarted_s"]``,
+    :func:`restarted_statistics`); without withdrawn alarms, :func:`statistics`."""
+    one = slice(b, b + 1)
+    stats = {h: g[one].copy() for h, g in statistics(out, th, baseline).items()}
+    restart = restarted_statistics(out, th, baseline)
+    for ts in diag.likelihood.get("tests_restarted_s", []):
+        k = int(np.searchsorted(out.t, ts))
+        start = np.zeros(out.mean.shape[0], dtype=np.int64)
+        start[b] = k
+        for h, g in restart(start).items():
+            stats[h][0, k:] = g[b, k:]
+    return stats
+
+
 def first_alarm(g: np.ndarray, h: float) -> np.ndarray:
     """Index of the first sample with g > h per row (-1: none)."""
     above = g > h
@@ -774,7 +790,8 @@ def _alarm_record(out: FilterOutput, th: Thresholds, d) -> dict:
     rec = {"alarm_s": float(t[d.alarm]) if d.alarm >= 0 else None,
            "confirm_nats": th.confirm_nats if th.confirm_nats > 0 else None,
            "confirmed_s": float(t[d.confirm_index]) if d.confirm_index >= 0 else None,
-           "withdrawn_alarms_s": [float(t[k]) for k in d.withdrawn]}
+           "withdrawn_alarms_s": [float(t[k]) for k in d.withdrawn],
+           "tests_restarted_s": [float(t[k]) for k in d.restarts if k < len(t)]}  # not at the record's end
     if d.episodes_capped:
         rec["episodes_capped"] = isolate.MAX_EPISODES
     return rec
@@ -787,8 +804,10 @@ def _withdrawn(out: FilterOutput, th: Thresholds, d):
 
     rec = _alarm_record(out, th, d)
     times = ", ".join(f"{s:.3f}" for s in rec["withdrawn_alarms_s"])
+    least = isolate.MIN_SINGLE_SIZE
     note = (f"alarm(s) at t = {times} s withdrawn: in the {isolate.DECISION_WINDOW_S:g} s after each, no fault hypothesis "
-            f"explained the measurements better than the healthy model by {rec['confirm_nats']:.2g} nats "
+            f"explained the measurements better than the healthy model by {rec['confirm_nats']:.2g} nats with its "
+            f"fault parameter moved by at least {leak_lpm(least['K_int']):.2g} L/min or {100 * least['offset']:.2g} % "
             f"(largest lead {d.lead_max:.1f} nats in the last window)")
     if d.episodes_capped:
         note += f"; the tests were not restarted after {rec['episodes_capped']} withdrawn alarms"

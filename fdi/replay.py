@@ -18,7 +18,7 @@ from sam.geometry import joint_angle, piston_position
 
 from . import calibration
 from .detect import (
-    MIN_TESTED_S, PARAMS, Diagnosis, Thresholds, diagnose, held, residuals, statistics,
+    MIN_TESTED_S, PARAMS, Diagnosis, Thresholds, detector_statistics, diagnose, held, residuals, statistics,
 )
 from .ukf import (
     POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
@@ -223,6 +223,7 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
     out.t = rec.t - rec.t[0]
     stats = statistics(out, thresholds, baseline)
     diag = diagnose(out, thresholds, 0, stats, baseline)
+    stats = detector_statistics(out, thresholds, diag, baseline)  # restarted after withdrawn alarms
     diag.filter_health.update(info)
     if info["out_of_range_samples"]:
         diag.filter_health["out_of_range_samples"] = info["out_of_range_samples"]
@@ -323,6 +324,18 @@ def _write_csv(path: Path, cols: dict) -> None:
             w.writerow([repr(float(x)) if math.isfinite(x) else "nan" for x in row])
 
 
+def _alarm_lines(diag) -> list:
+    """(time [s], axvline style) of the alarms to mark: with the likelihood bank the alarm that
+    stood (red) and the withdrawn ones (grey, dashed); otherwise every hypothesis' first alarm."""
+    lik = diag.likelihood
+    if "withdrawn_alarms_s" not in lik:
+        return [(ta, {"color": "r", "lw": 0.8}) for ta in diag.alarms.values()]
+    lines = [(ta, {"color": "0.5", "lw": 0.8, "ls": "--"}) for ta in lik["withdrawn_alarms_s"]]
+    if lik.get("alarm_s") is not None and lik.get("confirmed_s") is not None:
+        lines.append((lik["alarm_s"], {"color": "r", "lw": 0.8}))
+    return lines
+
+
 def _figure(path: Path, t, out, res, stats, th, diag) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -363,9 +376,12 @@ def _figure(path: Path, t, out, res, stats, th, diag) -> None:
     ax3.set_ylabel("statistic / threshold")
     ax3.set_xlabel("t [s]")
     ax3.legend(loc="upper left", fontsize=8)
-    for h, ta in diag.alarms.items():
+    for ta, style in _alarm_lines(diag):
         for a in axes:
-            a.axvline(ta, color="r", lw=0.8)
+            a.axvline(ta, **style)
+    if diag.likelihood.get("withdrawn_alarms_s"):
+        ax3.plot([], [], color="0.5", lw=0.8, ls="--", label="withdrawn alarm (the bank saw no fault; tests restarted)")
+        ax3.legend(loc="upper left", fontsize=8)
     title = f"diagnosis: {diag.status} {', '.join(diag.isolated)}"
     if diag.isolation_time_s is not None:  # the likelihood bank's decision
         for a in axes:

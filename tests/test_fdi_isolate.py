@@ -362,7 +362,8 @@ def test_revision_rule_on_hand_made_evidence():
     evidence at the window's end puts the offset ahead of every other single by 20 nats: an
     early K_int decision is revised to the offset (with that filter's size); an early offset+
     decision is revised when the later offset is negative (the other side); an early offset-
-    decision is kept; an early "not isolable" is resolved; a 3-nat lead revises nothing."""
+    decision is kept; an early "not isolable" is resolved; a 3-nat lead revises nothing, nor does
+    an offset filter that moved by 0.3 % only."""
     H, L = len(iso.MULTI), 5
 
     def bank(lead):
@@ -388,6 +389,9 @@ def test_revision_rule_on_hand_made_evidence():
     assert iso.decide_pair(bank(20.0), 0, m, early("offset", -0.02)).revised is None  # offset- confirmed
     assert iso.decide_pair(bank(20.0), 0, m, early(None, float("nan"))).revised == "offset"  # resolved
     assert iso.decide_pair(bank(3.0), 0, m, early("K_int", 1e-9)).revised is None  # below the margin
+    small = bank(20.0)
+    small.change[0, 3, 3] = -0.003  # the offset filter moved by 0.3 % only (< MIN_SINGLE_SIZE)
+    assert iso.decide_pair(small, 0, m, early("K_int", 1e-9)).revised is None
 
 
 def test_a_fault_is_named_only_once_its_filter_has_moved():
@@ -453,7 +457,7 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     alarm stands) the healthy run is a fault."""
     from dataclasses import replace
 
-    from fdi.detect import Thresholds, diagnose, statistics
+    from fdi.detect import Thresholds, detector_statistics, diagnose, statistics
     from fdi.ukf import preset
 
     shipped = Thresholds.shipped()
@@ -480,3 +484,12 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     assert 5.9 <= faulty.detection_time_s < 6.5 and faulty.likelihood["alarm_s"] == faulty.detection_time_s
     assert 6.0 < faulty.likelihood["confirmed_s"] < 7.0
     assert diagnose(out, replace(th, confirm_nats=0.0), 0, stats).status != "healthy"
+    # what replay writes and plots: the statistics as the detector ran them, restarted from 0
+    # (one sample's increment at most) one window after each withdrawn alarm, the first pass
+    # before the first restart
+    shown = detector_statistics(out, th, healthy)
+    restarts = np.searchsorted(out.t, healthy.likelihood["tests_restarted_s"])
+    assert len(withdrawn) - 1 <= len(restarts) <= len(withdrawn)  # none after a window that ends the record
+    assert all(shown[h][0, k] < 0.1 * th.h[h] for h in shown for k in restarts)
+    for h in shown:
+        np.testing.assert_array_equal(shown[h][0, :restarts[0]], stats[h][0, :restarts[0]])
