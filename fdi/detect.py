@@ -193,7 +193,8 @@ class Thresholds:
     false_isolation_level: float = 0.01
     #: "likelihood": an alarm stands only when, within the bank's decision window after it, the
     #: best fault hypothesis' log-likelihood exceeds the healthy hypothesis' by this many nats
-    #: (the bank's "none" filter); otherwise the alarm is withdrawn, the tests restart after the
+    #: (the bank's "none" filter) and its filter has moved the fault parameter by the smallest
+    #: size of interest (fdi.isolate.MIN_SINGLE_SIZE); otherwise the alarm is withdrawn, the tests restart after the
     #: window and the run stays "healthy" unless a later alarm stands. 0: every alarm stands
     #: (sessions 1-13). Why: in long steady strokes the K_int and offset estimates wander to
     #: 5 sigma along a direction the data do not constrain; the bank, which compares the

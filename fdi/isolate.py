@@ -574,7 +574,8 @@ class Decision:
     revised_index: int = -1
     #: the alarm this decision answers (recording sample) and whether it stands: some sample of
     #: the window from the alarm on has the best fault beating "none" by the confirmation
-    #: evidence (:func:`confirm_evidence`); a decision is only taken at such a sample
+    #: evidence (:func:`confirm_evidence`) with its filter moved by MIN_SINGLE_SIZE; a decision
+    #: is only taken at such a sample
     alarm: int = -1
     confirmed: bool = True
     confirm_index: int = -1  #: recording sample of the confirmation (-1: not confirmed)

@@ -102,7 +102,8 @@ def test_thresholds_file_memory_is_validated(tmp_path):
         with pytest.raises(ValueError, match="run_length_s"):
             Thresholds.load(f)
     for key, bad in (("long_stroke_s", "-1"), ("long_stroke_s", "true"), ("long_stroke_drift", "-0.5"),
-                     ("long_stroke_drift", "\"4\""), ("drift", "nan")):
+                     ("long_stroke_drift", "\"4\""), ("drift", "nan"), ("confirm_nats", "-1"),
+                     ("confirm_nats", "\"20\""), ("confirm_nats", "nan"), ("confirm_nats", "true")):
         f.write_text(f"[thresholds]\n{key} = {bad}\n")
         with pytest.raises(ValueError, match=key):
             Thresholds.load(f)
