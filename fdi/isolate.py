@@ -625,14 +625,20 @@ def decide(bank: BankResult, i: int, k_alarm: int, margin: float, confirm: float
 
 def _credible(bank: BankResult, i: int, fi: list, ll: np.ndarray) -> np.ndarray:
     """(L,) bool per bank sample: the best hypothesis' filter has moved its parameter by at least
-    MIN_SINGLE_SIZE there (leaks upwards, the offset either way)."""
+    MIN_SINGLE_SIZE there (:func:`moved_enough`)."""
     best = np.argmax(ll, axis=0)
     hk = np.asarray(fi)[best]
     k = np.arange(ll.shape[1])
-    change = bank.free[i, hk, k] - bank.healthy[i, hk]
-    least = np.array([MIN_SINGLE_SIZE[h] for h in FAULTS])[best]
-    signed = np.where(np.asarray(FAULTS)[best] == "offset", np.abs(change), change)
-    return signed >= least
+    return moved_enough(np.asarray(FAULTS)[best], bank.free[i, hk, k] - bank.healthy[i, hk])
+
+
+def moved_enough(fault, change) -> np.ndarray:
+    """Whether a change (SI) of each fault parameter (FAULTS names; arrays of one shape) reaches
+    MIN_SINGLE_SIZE: leaks upwards (a leak cannot shrink below its healthy value), the offset
+    either way."""
+    fault, change = np.asarray(fault), np.asarray(change, dtype=float)
+    least = np.vectorize(MIN_SINGLE_SIZE.get, otypes=[float])(fault)
+    return np.where(fault == "offset", np.abs(change), change) >= least
 
 
 def best_single(d: Decision) -> str:
@@ -687,8 +693,7 @@ def _revise(bank: BankResult, i: int, margin: float, d: Decision, ll_single: np.
     srt = np.sort(ll_single)
     best = int(np.argmax(ll_single))
     change = float(bank.change[i, best, best])
-    size = abs(change) if FAULTS[best] == "offset" else change  # leaks only grow
-    if srt[-1] - srt[-2] < margin or size < MIN_SINGLE_SIZE[FAULTS[best]] or (
+    if srt[-1] - srt[-2] < margin or not moved_enough(FAULTS[best], change) or (
             d.hypothesis is not None
             and hypothesis_name(FAULTS[best], change) == hypothesis_name(d.hypothesis, d.size)):
         return
@@ -712,7 +717,7 @@ def first_alarms(stats: dict, h: dict) -> tuple[np.ndarray, list]:
 
 
 def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float,
-            horizon_s: float | None = None, rows=None, k_stop: int | None = None, size: bool = True,
+            horizon_s: float | None = None, rows=None, k_stop=None, size: bool = True,
             pairs: bool = True, pair_horizon_s: float | None = PAIR_WINDOW_S, confirm: float = -math.inf,
             restart=None) -> dict:
     """Run the reference and the bank for every run (of ``rows``) that alarmed, batched;
@@ -735,26 +740,24 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     window and the next alarm is examined in turn (at most MAX_EPISODES); the run's Decision
     is the first confirmed one (``withdrawn``: the earlier alarms) or, if none stands, the
     last withdrawn one (``confirmed`` False)."""
-    decs = _episode(out, stats, h, k_ready, margin, horizon_s, rows, k_stop, size, pairs, pair_horizon_s, confirm)
+    B, T = out.mean.shape[:2]
+    rows = np.arange(B) if rows is None else np.asarray(rows, dtype=np.int64)
+    stop = np.full(B, T, dtype=np.int64)  # per run: never judged beyond this sample
+    if k_stop is not None:
+        stop[rows] = np.minimum(T, k_stop)
+    decs = _episode(out, stats, h, k_ready, margin, horizon_s, rows, stop[rows], size, pairs, pair_horizon_s, confirm)
     todo = _withdraw(decs, decs)
     if restart is None:
         return decs
-    B, T = out.mean.shape[:2]
-    stop = k_stop
-    if np.ndim(k_stop) > 0:  # one per run of ``rows``: looked up by run
-        by_run = dict(zip((np.arange(B) if rows is None else np.asarray(rows)).tolist(), np.asarray(k_stop).tolist()))
     for _ in range(MAX_EPISODES - 1):
         start = np.zeros(B, dtype=np.int64)
         for b in todo:  # the tests restart where the withdrawn alarm's window ended
             start[b] = decs[b].window_end
-        end = {b: T if k_stop is None else (by_run[b] if np.ndim(k_stop) > 0 else k_stop) for b in todo}
-        todo = [b for b in todo if start[b] < min(T, end[b]) - 1]
+        todo = [b for b in todo if start[b] < stop[b] - 1]
         if not todo:
             return decs
-        if np.ndim(k_stop) > 0:
-            stop = np.array([by_run[b] for b in todo], dtype=np.int64)
-        nxt = _episode(out, restart(start), h, np.maximum(k_ready, start), margin, horizon_s, todo, stop,
-                       size, pairs, pair_horizon_s, confirm)
+        nxt = _episode(out, restart(start), h, np.maximum(k_ready, start), margin, horizon_s, np.array(todo),
+                       stop[todo], size, pairs, pair_horizon_s, confirm)
         todo = _withdraw(nxt, decs)
     for b in todo:
         decs[b].episodes_capped = True
@@ -774,26 +777,23 @@ def _withdraw(new: dict, decs: dict) -> list:
 
 def _episode(out: FilterOutput, stats: dict, h: dict, k_ready, margin: float, horizon_s, rows, k_stop,
              size: bool, pairs: bool, pair_horizon_s, confirm: float) -> dict:
-    """One alarm per run (the first of ``stats``): the stages of :func:`isolate`. ``k_ready``:
-    a sample, or one per run (B,), before which no onset is estimated."""
+    """One alarm per run (the first of ``stats``): the stages of :func:`isolate` for runs ``rows``
+    (array), each judged up to ``k_stop`` (one sample per row). ``k_ready``: a sample, or one
+    per run (B,), before which no onset is estimated."""
     dt = float(out.t[1] - out.t[0])
     T = out.mean.shape[1]
     k_alarm, who = first_alarms(stats, h)
-    rows = np.arange(len(k_alarm)) if rows is None else np.asarray(rows)
-    keep = k_alarm[rows] >= 0 if len(rows) else np.zeros(0, bool)
-    rows = rows[keep].astype(np.int64)
+    keep = k_alarm[rows] >= 0
+    rows, k_stop = rows[keep], k_stop[keep]
     if not len(rows):
         return {}
-    if np.ndim(k_stop) > 0:
-        k_stop = np.asarray(k_stop)[keep]
     ready = np.broadcast_to(np.asarray(k_ready, dtype=np.int64), k_alarm.shape)
     ka = k_alarm[rows]
     k0 = np.array([onset_index(stats[who[b]][b], int(k_alarm[b]), int(ready[b]), dt) for b in rows], dtype=np.int64)
     k1 = np.full(len(rows), T, dtype=np.int64)
     if horizon_s is not None:
         k1 = np.minimum(T, ka + int(round(horizon_s / dt)) + 1)
-    if k_stop is not None:
-        k1 = np.minimum(k1, k_stop)
+    k1 = np.minimum(k1, k_stop)
     k1 = np.maximum(k1, k0 + 1)
     ref = run_reference(out, rows, k0 + 1)
     kd = earliest_decision(ka, k0, dt)
@@ -827,8 +827,7 @@ def _episode(out: FilterOutput, stats: dict, h: dict, k_ready, margin: float, ho
         kp = np.full(len(sel), T, dtype=np.int64)
         if pair_horizon_s is not None:
             kp = np.minimum(T, ka[sel] + int(round(pair_horizon_s / dt)) + 1)
-        if k_stop is not None:
-            kp = np.minimum(kp, k_stop if np.ndim(k_stop) == 0 else np.asarray(k_stop)[sel])
+        kp = np.minimum(kp, k_stop[sel])
         pb = run_pairs(out, ref, bank.subset(sel), rows[sel], kp, [best_single(decs[i]) for i in sel])
         for q, i in enumerate(sel):
             decide_pair(pb, q, margin_for(margin_level(margin), len(MULTI)), decs[i])
