@@ -588,20 +588,24 @@ class Decision:
     episodes_capped: bool = False  #: MAX_EPISODES withdrawn alarms: the tests were not restarted again
 
 
-def decide(bank: BankResult, i: int, k_alarm: int, margin: float, confirm: float = -math.inf) -> Decision:
+def decide(bank: BankResult, i: int, k_alarm: int, margin: float, confirm: float = -math.inf,
+           hidden: np.ndarray | None = None) -> Decision:
     """First sample k >= k_alarm at which the best fault hypothesis of bank run i beats every
     other fault hypothesis by ``margin`` nats and the healthy one by ``confirm`` nats (causal:
     L_H(k) uses samples up to k). The decision is confirmed (the alarm stands) if at some sample
     >= k_alarm the best fault beats the healthy hypothesis by ``confirm`` and its filter has
-    moved its parameter by MIN_SINGLE_SIZE (:func:`_credible`), isolated or not."""
+    moved its parameter by MIN_SINGLE_SIZE (:func:`_credible`), isolated or not. ``hidden``
+    (F, T) bool, FAULTS order, recording samples of the run: where each fault parameter cannot
+    show (:func:`fdi.detect.held_on_stop`): no decision or confirmation names a fault there,
+    and its evidence over "none" counts only the samples where it can show (:func:`_evidence`)."""
     names = list(bank.names)
     fi = [names.index(h) for h in FAULTS]
     nv = int(bank.n_valid[i])
     ll = bank.loglik[i][fi, :nv]  # (F, nv)
     start = min(max(0, k_alarm - int(bank.k0[i])), nv - 1)
     srt = np.sort(ll, axis=0)
-    lead = srt[-1, start:] - bank.loglik[i, names.index("none"), start:nv]
-    credible = _credible(bank, i, fi, ll)[start:]
+    lead = _evidence(ll, bank.loglik[i, names.index("none"), :nv], hidden, int(bank.k0[i]))[start:]
+    credible = _credible(bank, i, fi, ll, hidden)[start:]
     conf = np.flatnonzero((lead >= confirm) & (credible | (confirm == -math.inf)))  # -inf: every alarm stands
     ok = np.flatnonzero((srt[-1, start:] - srt[-2, start:] >= margin) & credible & (lead >= confirm))
     at = start + int(ok[0]) if len(ok) else nv - 1
@@ -623,13 +627,32 @@ def decide(bank: BankResult, i: int, k_alarm: int, margin: float, confirm: float
     return Decision(None, -1, cands, llr, llr_none, k0, onset, size, size_sd, **stands)
 
 
-def _credible(bank: BankResult, i: int, fi: list, ll: np.ndarray) -> np.ndarray:
+def _evidence(ll: np.ndarray, ll_none: np.ndarray, hidden: np.ndarray | None, k0: int) -> np.ndarray:
+    """(L,) the lead of the best fault hypothesis (largest ll (F, L), cumulative) over the healthy
+    one (ll_none (L,)) at each bank sample [nats]. With ``hidden`` ((F, T) recording samples from
+    ``k0`` on) each hypothesis' lead only grows where its parameter can show: the increments of
+    L_H - L_none at its hidden samples are not counted."""
+    d = ll - ll_none[None, :]
+    if hidden is not None:
+        inc = np.diff(d, axis=1, prepend=0.0)
+        d = np.cumsum(np.where(hidden[:, k0:k0 + ll.shape[1]], 0.0, inc), axis=1)
+    return d[np.argmax(ll, axis=0), np.arange(ll.shape[1])]
+
+
+def _credible(bank: BankResult, i: int, fi: list, ll: np.ndarray, hidden: np.ndarray | None = None) -> np.ndarray:
     """(L,) bool per bank sample: the best hypothesis' filter has moved its parameter by at least
-    MIN_SINGLE_SIZE there (:func:`moved_enough`)."""
+    MIN_SINGLE_SIZE there (:func:`moved_enough`) and, with ``hidden`` ((F, T), recording
+    samples), that parameter can show there. Why: on an end stop with the valve open (pinned
+    pressures) the model's inelastic stop biases the predicted pressures, and a free parameter
+    that cannot act there (K_extA with A at tank, the offset) still fits that bias (healthy
+    20 s runs of 20-60 s cycles, from x: 5 of 7 confirmed false alarms, leads 21-135 nats)."""
     best = np.argmax(ll, axis=0)
     hk = np.asarray(fi)[best]
     k = np.arange(ll.shape[1])
-    return moved_enough(np.asarray(FAULTS)[best], bank.free[i, hk, k] - bank.healthy[i, hk])
+    ok = moved_enough(np.asarray(FAULTS)[best], bank.free[i, hk, k] - bank.healthy[i, hk])
+    if hidden is not None:
+        ok &= ~hidden[best, int(bank.k0[i]) + k]
+    return ok
 
 
 def moved_enough(fault, change) -> np.ndarray:
@@ -719,7 +742,7 @@ def first_alarms(stats: dict, h: dict) -> tuple[np.ndarray, list]:
 def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float,
             horizon_s: float | None = None, rows=None, k_stop=None, size: bool = True,
             pairs: bool = True, pair_horizon_s: float | None = PAIR_WINDOW_S, confirm: float = -math.inf,
-            restart=None) -> dict:
+            restart=None, hidden: np.ndarray | None = None) -> dict:
     """Run the reference and the bank for every run (of ``rows``) that alarmed, batched;
     returns run -> Decision. A run's window is [k0, end of the record) or, with ``horizon_s``,
     [k0, alarm + horizon_s], never beyond ``k_stop``. In stages, so that the five filters run
@@ -739,13 +762,15 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     (:func:`fdi.detect.restarted_statistics`), the tests of a run whose alarm was withdrawn restart at the end of that
     window and the next alarm is examined in turn (at most MAX_EPISODES); the run's Decision
     is the first confirmed one (``withdrawn``: the earlier alarms) or, if none stands, the
-    last withdrawn one (``confirmed`` False)."""
+    last withdrawn one (``confirmed`` False). ``hidden`` (B, F, T) bool, FAULTS order: where
+    each fault parameter cannot show (:func:`fdi.detect.held`; see :func:`decide`)."""
     B, T = out.mean.shape[:2]
     rows = np.arange(B) if rows is None else np.asarray(rows, dtype=np.int64)
     stop = np.full(B, T, dtype=np.int64)  # per run: never judged beyond this sample
     if k_stop is not None:
         stop[rows] = np.minimum(T, k_stop)
-    decs = _episode(out, stats, h, k_ready, margin, horizon_s, rows, stop[rows], size, pairs, pair_horizon_s, confirm)
+    decs = _episode(out, stats, h, k_ready, margin, horizon_s, rows, stop[rows], size, pairs, pair_horizon_s, confirm,
+                    hidden)
     todo = _withdraw(decs, decs)
     if restart is None:
         return decs
@@ -757,7 +782,7 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
         if not todo:
             return decs
         nxt = _episode(out, restart(start), h, np.maximum(k_ready, start), margin, horizon_s, np.array(todo),
-                       stop[todo], size, pairs, pair_horizon_s, confirm)
+                       stop[todo], size, pairs, pair_horizon_s, confirm, hidden)
         todo = _withdraw(nxt, decs)
     for b in todo:
         decs[b].episodes_capped = True
@@ -776,7 +801,7 @@ def _withdraw(new: dict, decs: dict) -> list:
 
 
 def _episode(out: FilterOutput, stats: dict, h: dict, k_ready, margin: float, horizon_s, rows, k_stop,
-             size: bool, pairs: bool, pair_horizon_s, confirm: float) -> dict:
+             size: bool, pairs: bool, pair_horizon_s, confirm: float, hidden=None) -> dict:
     """One alarm per run (the first of ``stats``): the stages of :func:`isolate` for runs ``rows``
     (array), each judged up to ``k_stop`` (one sample per row). ``k_ready``: a sample, or one
     per run (B,), before which no onset is estimated."""
@@ -799,13 +824,14 @@ def _episode(out: FilterOutput, stats: dict, h: dict, k_ready, margin: float, ho
     kd = earliest_decision(ka, k0, dt)
     k_a1 = np.minimum(kd + 1, k1)  # stage 1: up to and including the first sample it may decide at
     bank = run_bank_starts(out, ref, rows, k0, k_a1, ka)
-    decs = [decide(bank, i, int(kd[i]), margin, confirm) for i in range(len(rows))]
+    hid = (lambda b: None) if hidden is None else (lambda b: hidden[b])
+    decs = [decide(bank, i, int(kd[i]), margin, confirm, hid(b)) for i, b in enumerate(rows)]
     seeds = [start_seed(bank, i, d.onset) for i, d in enumerate(decs)]  # of the decided filter
     late = np.array([i for i, d in enumerate(decs) if d.hypothesis is None and k1[i] > k_a1[i]], dtype=np.int64)
     if len(late):  # stage 2: the undecided runs over their whole window
         bank2 = run_bank_starts(out, ref, rows[late], k0[late], k1[late], ka[late], ref_rows=late)
         for q, i in enumerate(late):
-            decs[i] = decide(bank2, q, int(kd[i]), margin, confirm)
+            decs[i] = decide(bank2, q, int(kd[i]), margin, confirm, hid(rows[i]))
             seeds[i] = start_seed(bank2, q, decs[i].onset)
     for i, d in enumerate(decs):
         d.alarm = int(ka[i])

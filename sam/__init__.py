@@ -9,13 +9,14 @@ Public face:
 
 * parameters: :class:`Plant` and its groups, :func:`load_plant`, the flat
   vector layout :data:`P` / :data:`PARAM_NAMES`;
-* the model: :data:`S` (state layout), :func:`step_batch` (:func:`step_batch_inplace`), :func:`rhs`;
+* the model: :data:`S` (state layout), :func:`step_batch` (:func:`step_batch_inplace`), :func:`rhs`,
+  :func:`stroke_ends` (the end stops);
 * simulation: :func:`simulate_batch`, :func:`initial_state`, :func:`run_scenario`;
 * recordings: :class:`Recording`, :func:`read_recording`, :func:`write_recording`.
 """
 
 from .constants import DT_DEFAULT, LEAK_REFERENCE_DP, LPM
-from .dynamics import D, N_STATES, S, derive, euler_step, rhs, step_batch, step_batch_inplace
+from .dynamics import D, N_STATES, S, derive, euler_step, rhs, step_batch, step_batch_inplace, stroke_ends
 from .errors import UserError
 from .params import (
     P, PARAM_NAMES, Boom, Cylinder, Disturbances, Effects, Faults, Fluid, Friction, Plant,
@@ -28,7 +29,7 @@ from .simulate import BatchResult, initial_state, simulate_batch
 
 __all__ = [
     "DT_DEFAULT", "LEAK_REFERENCE_DP", "LPM", "D", "N_STATES", "S", "derive", "euler_step",
-    "rhs", "step_batch", "step_batch_inplace", "UserError", "P", "PARAM_NAMES", "Boom", "Cylinder", "Disturbances",
+    "rhs", "step_batch", "step_batch_inplace", "stroke_ends", "UserError", "P", "PARAM_NAMES", "Boom", "Cylinder", "Disturbances",
     "Effects", "Faults", "Fluid", "Friction", "Plant", "Supply", "Valve", "default_plant_path",
     "load_plant", "Recording", "RecordingError", "read_recording", "write_recording",
     "BatchResult", "initial_state", "simulate_batch", "Scenario", "load_scenario", "run_scenario",

@@ -445,6 +445,40 @@ def test_an_alarm_stands_only_when_the_bank_confirms_it():
     assert (d.hypothesis, d.index, d.confirmed) == ("K_int", 1000, True)
 
 
+def test_no_fault_is_named_where_its_parameter_cannot_show():
+    """decide() with ``hidden`` (fdi.detect.held_on_stop): K_int leads every other fault by 50
+    nats from the first sample and gains 5 nats per sample on "none". Unhidden, 20 nats are
+    reached and the alarm stands at sample 1003. With its test hidden over recording samples
+    1000-1005 (the piston on an end stop with the valve open) the evidence gathered there does
+    not count: 20 nats are reached at 1009, where K_int is named. Hidden over the whole window,
+    the alarm is withdrawn; a hidden K_extA (another parameter) changes nothing."""
+    L = 12
+    names = tuple(iso.BANK)
+    ll = np.zeros((1, len(names), L))
+    ll[0, names.index("K_int")] = 50.0
+    ll[0, names.index("none")] = 50.0 - 5.0 * np.arange(1, L + 1)
+    free = np.zeros((1, len(names), L))
+    free[0, names.index("K_int")] = 0.3 * K_PER_LPM
+    bank = iso.BankResult(k0=np.array([1000]), loglik=ll, free=free, free_sd=np.ones((1, len(names), L)),
+                          healthy=np.zeros((1, len(names))), n_valid=np.array([L]), names=names,
+                          start=np.full((1, len(names)), 1000))
+    confirmed = lambda hidden: iso.decide(bank, 0, 1000, iso.margin_for(), confirm=20.0, hidden=hidden)
+    hidden = np.zeros((len(iso.FAULTS), 1100), dtype=bool)
+    d = confirmed(hidden)
+    assert (d.hypothesis, d.index, d.confirmed, d.confirm_index) == ("K_int", 1003, True, 1003)
+    hidden[iso.FAULTS.index("K_int"), 1000:1006] = True
+    d = confirmed(hidden)
+    assert (d.hypothesis, d.index, d.confirmed, d.confirm_index) == ("K_int", 1009, True, 1009)
+    assert d.lead_max == pytest.approx(30.0)  # 6 of the 12 samples counted
+    hidden[iso.FAULTS.index("K_int"), 1000:1012] = True
+    d = confirmed(hidden)
+    assert (d.hypothesis, d.confirmed) == (None, False)
+    other = np.zeros_like(hidden)
+    other[iso.FAULTS.index("K_extA")] = True
+    d = confirmed(other)
+    assert (d.hypothesis, d.index, d.confirmed) == ("K_int", 1003, True)
+
+
 def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     """The episode loop of isolate.isolate, end to end through diagnose(): change tests made far
     too sensitive (no drift, h / 20) alarm on a healthy run again and again (at about 1.7, 3.0,

@@ -12,8 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sam import P, load_plant
-from fdi.detect import (MIN_BASELINE_S, PARAMS, Thresholds, baseline_window, diagnose, held, pinned,
-                        resting_on_stop)
+from fdi.detect import (MIN_BASELINE_S, PARAMS, Thresholds, baseline_window, diagnose, held, held_on_stop,
+                        pinned, resting_on_stop)
 from fdi.synth import simulate_runs
 from fdi.ukf import POS_X, FilterInput, FilterOutput, run_filter
 
@@ -46,6 +46,11 @@ def test_end_stop_creep_is_held_not_alarmed():
     hidden = held(out, th)[0][:, int(2 / DT):].all(axis=1)
     assert dict(zip(PARAMS, hidden)) == {"K_int": False, "K_extA": True, "K_extB": False, "offset": True}
     assert diagnose(out, th, 0).status == "healthy"
+    # the bank names no fault whose test is held on the stop (fdi.isolate.decide's hidden);
+    # on the way there (x > 1 mm) nothing is hidden from it
+    on_stop = held_on_stop(out, th)[0]
+    assert np.array_equal(on_stop[:, int(2 / DT):], held(out, th)[0][:, int(2 / DT):])
+    assert not on_stop[:, out.mean[0, :, 4] > 1e-3].any() and (out.mean[0, :int(1.0 / DT), 4] > 1e-3).all()
 
 
 def test_offset_and_kint_tests_are_held_while_resting_on_the_extension_stop():
