@@ -642,10 +642,7 @@ def _evidence(ll: np.ndarray, ll_none: np.ndarray, hidden: np.ndarray | None, k0
 def _credible(bank: BankResult, i: int, fi: list, ll: np.ndarray, hidden: np.ndarray | None = None) -> np.ndarray:
     """(L,) bool per bank sample: the best hypothesis' filter has moved its parameter by at least
     MIN_SINGLE_SIZE there (:func:`moved_enough`) and, with ``hidden`` ((F, T), recording
-    samples), that parameter can show there. Why: on an end stop with the valve open (pinned
-    pressures) the model's inelastic stop biases the predicted pressures, and a free parameter
-    that cannot act there (K_extA with A at tank, the offset) still fits that bias (healthy
-    20 s runs of 20-60 s cycles, from x: 5 of 7 confirmed false alarms, leads 21-135 nats)."""
+    samples), that parameter can show there (why: :func:`fdi.detect.held_on_stop`)."""
     best = np.argmax(ll, axis=0)
     hk = np.asarray(fi)[best]
     k = np.arange(ll.shape[1])
@@ -763,7 +760,7 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     window and the next alarm is examined in turn (at most MAX_EPISODES); the run's Decision
     is the first confirmed one (``withdrawn``: the earlier alarms) or, if none stands, the
     last withdrawn one (``confirmed`` False). ``hidden`` (B, F, T) bool, FAULTS order: where
-    each fault parameter cannot show (:func:`fdi.detect.held`; see :func:`decide`)."""
+    each fault parameter cannot show (:func:`fdi.detect.held_on_stop`; see :func:`decide`)."""
     B, T = out.mean.shape[:2]
     rows = np.arange(B) if rows is None else np.asarray(rows, dtype=np.int64)
     stop = np.full(B, T, dtype=np.int64)  # per run: never judged beyond this sample

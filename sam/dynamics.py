@@ -23,7 +23,7 @@ from . import views
 from .constants import P_CAVITATION
 from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, stribeck
 from .geometry import (
-    cos_joint_angle, load_torque_cs, piston_position, torque_arm_cs, total_inertia,
+    cos_joint_angle, load_torque_cs, stroke_end, torque_arm_cs, total_inertia,
 )
 from .hydraulics import fault_leakages, flow_coefficient, pressure_rate, valve_flows
 from .params import P
@@ -87,19 +87,11 @@ def areas(D_piston, D_rod):
     return A_A, A_A - np.pi * D_rod**2 / 4.0
 
 
-@jit_inline
-def stroke_end(p):
-    """m: the extension end stop of parameter row ``p`` (len(P),): the stroke x_max or the
-    piston position of the joint limit theta_max (Eq. (3)), whichever comes first (the
-    retraction stop is x = 0). :func:`euler_step` clamps the piston there."""
-    return min(p[P.x_max], piston_position(p[P.theta_max], p[P.L_1], p[P.L_2], p[P.L_3]))
-
-
 def stroke_ends(params) -> np.ndarray:
-    """m, (...,): :func:`stroke_end` of every parameter row of ``params`` (..., len(P))."""
+    """m, (...,): the extension end stop (:func:`stroke_end`) of every parameter row of
+    ``params`` (..., len(P)); the retraction stop is x = 0. :func:`euler_step` clamps there."""
     p = np.asarray(params, dtype=float)
-    return np.minimum(p[..., P.x_max], piston_position(p[..., P.theta_max], p[..., P.L_1], p[..., P.L_2],
-                                                       p[..., P.L_3]))
+    return stroke_end(p[..., P.x_max], p[..., P.theta_max], p[..., P.L_1], p[..., P.L_2], p[..., P.L_3])
 
 
 @jit
@@ -116,7 +108,7 @@ def derive(p, d):
     d[D.A_A], d[D.A_B] = areas(p[P.D_piston], p[P.D_rod])
     d[D.cos_alpha] = np.cos(p[P.alpha])
     d[D.sin_alpha] = np.sin(p[P.alpha])
-    d[D.x_end] = stroke_end(p)
+    d[D.x_end] = stroke_end(p[P.x_max], p[P.theta_max], p[P.L_1], p[P.L_2], p[P.L_3])
     J_tot = total_inertia(p[P.m_B], p[P.L_B], p[P.m_L], p[P.m_R], p[P.L])
     d[D.inv_J_tot] = 1.0 / J_tot
     # sigma_1 = 2 sqrt(sigma_0 J_tot / r^2) = bristle_damping(sigma_0, J_tot) / r

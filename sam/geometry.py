@@ -34,6 +34,13 @@ def piston_position(theta, L_1, L_2, L_3):
 
 
 @jit
+def stroke_end(x_max, theta_max, L_1, L_2, L_3):
+    """The extension end stop [m]: the stroke x_max or the piston position of the joint limit
+    theta_max (Eq. (3)), whichever comes first (scalars or arrays)."""
+    return np.minimum(x_max, piston_position(theta_max, L_1, L_2, L_3))
+
+
+@jit
 def cos_joint_angle(x, L_1, L_2, L_3):
     """cos(theta) from the piston position x [m]: Eq. (3) solved for theta."""
     return (L_1**2 + L_2**2 - (x + L_3) ** 2) / (2.0 * L_1 * L_2)
