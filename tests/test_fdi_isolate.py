@@ -479,6 +479,41 @@ def test_no_fault_is_named_where_its_parameter_cannot_show():
     assert (d.hypothesis, d.index, d.confirmed) == ("K_int", 1003, True)
 
 
+def test_unseen_notch_flows_are_not_taken_for_a_fault():
+    """A HEALTHY plant at 50 kg whose retraction notches are weak within the nuisance box
+    (Q_N_PB -2 %, Q_N_AT -1.5 %): extension, a 2 s hold, then its first retraction. The
+    reference has never seen those notches (their calibration is still its prior). The bank
+    over the first 1.2 s of the retraction, seeded 0.2 s before it: with the calibration held
+    at the reference's values (the naming bank) K_int leads "none" by more than 100 nats
+    (measured 458) and the offset too, the pattern of the last long-cycle false alarms; with
+    the load mass and the notch flows as uncertain constant states (the confirmation bank,
+    isolate.CONFIRM_CALIBRATE) no fault fits better than "none", so the alarm would not stand."""
+    from sam import P
+    from fdi.detect import Thresholds
+    from fdi.ukf import preset
+
+    nominal = load_plant().vector()
+    nominal[P.m_L] = 50.0
+    truth = nominal.copy()
+    truth[P.Q_N_PB] *= 0.98
+    truth[P.Q_N_AT] *= 0.985
+    t = np.arange(int(7.0 / DT) + 1) * DT
+    u = np.where(t < 1.0, 0.0, np.where(t < 4.0, 2.5, np.where(t < 6.0, 0.0, -3.0)))
+    runs = simulate_runs(truth[None], u, DT, seed=11, position="x", nominal=load_plant().vector()[None])
+    out = run_filter(runs.inp, preset(Thresholds.shipped().filter))
+    k0, k1 = np.array([int(5.8 / DT)]), np.array([int(7.0 / DT)])
+    ref = iso.run_reference(out, np.array([0]), k0 + 1)
+
+    def leads(kept):
+        bank = iso.run_bank(out, ref, np.array([0]), k0, k1, kept=kept)
+        ll = bank.loglik[0, :, k1[0] - k0[0] - 1]
+        return {h: ll[i] - ll[bank.names.index("none")] for i, h in enumerate(bank.names)}
+
+    held = leads(())
+    assert held["K_int"] > 100.0 and held["offset"] > 100.0
+    assert max(leads(iso.confirm_calibration(ref.config))[h] for h in iso.FAULTS) < 0.0
+
+
 def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     """The episode loop of isolate.isolate, end to end through diagnose(): change tests made far
     too sensitive (no drift, h / 20) alarm on a healthy run again and again (at about 1.7, 3.0,
