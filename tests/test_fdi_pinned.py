@@ -76,9 +76,10 @@ def test_offset_and_kint_tests_are_held_while_resting_on_the_extension_stop():
 @pytest.mark.slow
 def test_the_long_stall_still_needs_the_hold():
     """The shipped healthy 60 s cycle at 800 kg stalls against the load with pinned pressures
-    (46.7 s of its 60 s): with the shipped thresholds it is healthy; with nothing ever pinned it
-    alarms, offset+ first (measured 24.3 s) and K_extA later (39.7 s), the estimates that creep
-    where the pinned pressures hide them, with or without the CUSUM's memory."""
+    (46.7 s of its 60 s): with the shipped thresholds it is healthy; with nothing ever pinned
+    its tests alarm, an offset test first (measured 19-24 s) and K_extA later (39-40 s), the estimates
+    that creep where the pinned pressures hide them, with or without the CUSUM's memory. (Since
+    session 15 the confirmation bank, whose notch flows may move, withdraws those alarms too.)"""
     from sam.scenario import load_scenario, run_scenario
     from fdi.replay import replay
 
@@ -90,7 +91,7 @@ def test_the_long_stall_still_needs_the_hold():
         # the long-stroke rule off too: this is about what the pinned hold alone does
         unheld = replay(rec, load_plant(), thresholds=replace(th, pin_margin_Pa=NO_PINNING, memory_s=memory,
                                                               long_stroke_s=None))[3]
-        assert unheld.status != "healthy" and "K_extA" in unheld.alarms and unheld.alarms["K_extA"] > 30.0
+        assert any(k.startswith("offset") for k in unheld.alarms) and unheld.alarms.get("K_extA", 0.0) > 30.0
 
 
 def test_fed_chamber_leak_is_still_seen_in_a_stall():
