@@ -77,10 +77,10 @@ from .ukf import (
 #: session 4: load mass, B_eff and the four notch flows); its fault states are held.
 REFERENCE = PRESETS["calibrated"]
 #: Calibration states of the reference that the CONFIRMATION bank carries as uncertain constant
-#: states (in every hypothesis, "none" too) instead of holding them at the reference's values
-#: (:func:`confirmation_bank`, :func:`decide`'s ``conf``). A notch the machine has not yet used in the record is
-#: still at its prior (+-2 %) in the reference, and its error then looks like a fault to a bank
-#: that holds it: measured (session 15), the first retraction after an extension and a hold at
+#: states (in both its hypotheses, "none" too) instead of holding them at the reference's values
+#: (:func:`confirmation_bank`, :func:`decide`'s ``conf``). A notch the machine has not yet used
+#: in the record is still at its prior (+-2 %) in the reference, and its error then looks like a
+#: fault to a bank that holds it: measured (session 15), the first retraction after an extension and a hold at
 #: 51 kg (Q_N_PB -2 % in the truth): K_int led "none" by 330 nats in 0.8 s, the pattern of every
 #: long-cycle false alarm left; with these states free it trailed "none". The load mass too
 #: (unobservable in holds; without it one long-cycle false alarm more in 1100 runs). The bank
