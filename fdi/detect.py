@@ -568,6 +568,20 @@ def restarted_statistics(out: FilterOutput, th: Thresholds, baseline=None):
     return restart
 
 
+def alarm_judging(out: FilterOutput, th: Thresholds, baseline=None) -> dict:
+    """The keyword arguments of :func:`fdi.isolate.isolate` that judge alarms as the detector
+    does: the confirmation evidence (``th.confirm_nats``), the tests restarted with re-learnt
+    baselines after a withdrawn alarm (:func:`restarted_statistics`; not for the GLR detector,
+    whose statistics are not CUSUMs) and no fault named on an end stop where it cannot act
+    (:func:`held_on_stop`). Replay (:func:`diagnose`) and the tune both take them from here, so
+    that they judge alike."""
+    from . import isolate
+
+    return {"confirm": isolate.confirm_evidence(th),
+            "restart": None if th.detector == "glr" else restarted_statistics(out, th, baseline),
+            "hidden": held_on_stop(out, th)}
+
+
 def detector_statistics(out: FilterOutput, th: Thresholds, diag: "Diagnosis", baseline=None, b: int = 0) -> dict:
     """The statistics of run b, name -> (1, T), as the detector ran them: after each withdrawn
     alarm restarted, their baseline re-learnt (``diag.likelihood["tests_restarted_s"]``,
@@ -764,8 +778,7 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
         # the change test is armed after the baseline window (own baseline) or the warm-up
         k_ready = int(round((th.warmup_s + (th.baseline_s if baseline is None else 0.0)) / dt))
         decision = isolate.isolate(out, stats, th.h, k_ready, margin, horizon_s=isolate.DECISION_WINDOW_S,
-                                   rows=[b], pairs=th.several_faults, confirm=isolate.confirm_evidence(th),
-                                   restart=restarted_statistics(out, th, baseline), hidden=held_on_stop(out, th))[b]
+                                   rows=[b], pairs=th.several_faults, **alarm_judging(out, th, baseline))[b]
     d = decision
     if not d.confirmed:
         return _withdrawn(out, th, d)

@@ -42,7 +42,7 @@ from sam.errors import output_folder
 
 from . import bound as onset_bound
 from . import calibration, isolate
-from .detect import HYPOTHESES, Thresholds, held_on_stop, restarted_statistics, statistics
+from .detect import HYPOTHESES, Thresholds, alarm_judging, statistics
 from .montecarlo import make_batch, make_reference_batch
 from .ukf import preset, run_filter
 
@@ -58,9 +58,10 @@ REFERENCE_S = 4.0  #: s, length of the healthy reference recording of ``--refere
 #: chunk file tag: "r" = random onset, per-run k_onset saved (session 8); "s" = the same with the
 #: tests held where pinned pressures hide them and the session-9 thresholds (an older folder's
 #: chunks are not mixed in); "t": healthy runs of the thresholds' run_length_s (session 11);
-#: "u": every alarm judged by the bank, withdrawn unless confirmed (conf_k, session 14); "v":
-#: no fault named where its parameter cannot show (isolate.decide's ``hidden``, session 15)
-CHUNK_VERSION = "v"
+#: "u": every alarm judged by the bank, withdrawn unless confirmed (conf_k, session 14); "w":
+#: no fault named on an end stop where it cannot act, and the confirmation bank with the
+#: calibration uncertain (session 15; "v" had the first alone)
+CHUNK_VERSION = "w"
 LOAD_BINS = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))
 HYP = tuple(HYPOTHESES)
 MANIFEST = "tune.json"  #: the settings the folder's chunks were made with (:func:`manifest`)
@@ -180,11 +181,10 @@ def _bank_decisions(out, st, th: Thresholds, k_onset: np.ndarray, faulty: bool) 
     if not len(rows):
         return res
     k_ready = int(round((th.warmup_s + th.baseline_s) / DT))
-    restart = None if th.detector == "glr" else restarted_statistics(out, th)
     decs = isolate.isolate(out, st, th.h, k_ready, isolate.margin_for(th.false_isolation_level),
                            horizon_s=isolate.DECISION_WINDOW_S, rows=rows,
                            k_stop=k_end[rows] + 1 if faulty else None, size=False, pairs=False,
-                           confirm=isolate.confirm_evidence(th), restart=restart, hidden=held_on_stop(out, th))
+                           **alarm_judging(out, th))
     for b, d in decs.items():
         res["n_withdrawn"][b] = len(d.withdrawn)
         if d.confirmed:
