@@ -59,6 +59,10 @@ def add_commands(subparsers) -> None:
                    help="Hz: the sampling rate of the recordings the thresholds are for (default 1000; "
                    "1000 / rate must be a whole number, at least 100 Hz); replay refuses a recording "
                    "sampled at another rate than its thresholds'")
+    g.add_argument("--trigger-level", type=float, default=None,
+                   help="rate of CUSUM alarms per healthy run the h are set for (default 0.1; between the "
+                        "false-alarm level 0.01 and 1): each alarm is a trigger that the likelihood bank confirms "
+                        "or withdraws, which keeps the false alarms at 0.01 per run")
     g.add_argument("--out", required=True, help="output folder: thresholds.toml, thresholds.md, thresholds_gsa.json")
     g.add_argument("--force", action="store_true", help="overwrite existing output files")
     g.set_defaults(func=_thresholds)
@@ -107,7 +111,7 @@ def _load_thresholds(path):
 
 def _thresholds(args) -> int:
     from .replay import DT_TOLERANCE, MIN_SAMPLE_RATE_HZ
-    from .thresholds import OUTPUT_FILES, compute_thresholds, describe, write_thresholds
+    from .thresholds import FA_LEVEL, OUTPUT_FILES, TRIGGER_LEVEL, compute_thresholds, describe, write_thresholds
 
     if args.workers < 1:
         raise UserError(f"--workers: must be >= 1, got {args.workers}")
@@ -124,9 +128,13 @@ def _thresholds(args) -> int:
     from .ukf import PRESETS
     if args.filter not in PRESETS:
         raise UserError(f"--filter: unknown filter {args.filter!r}; known: {', '.join(PRESETS)}")
+    trigger = TRIGGER_LEVEL if args.trigger_level is None else args.trigger_level
+    if not (math.isfinite(trigger) and FA_LEVEL <= trigger <= 1.0):
+        raise UserError(f"--trigger-level: {args.trigger_level:g} is not a rate per run between the false-alarm "
+                        f"level {FA_LEVEL:g} and 1")
     plant = _plant(args)
     out = output_folder(args.out, OUTPUT_FILES, args.force)
-    th, report = compute_thresholds(plant, N_leak=args.n_leak, N_nuisance=args.n_nuisance,
+    th, report = compute_thresholds(plant, N_leak=args.n_leak, N_nuisance=args.n_nuisance, trigger_level=trigger,
                                     workers=args.workers, filter=args.filter, detector=args.detector,
                                     vote_rule=args.votes, progress=True, sample_dt_s=round(k) * 1e-3)
     print(describe(th))

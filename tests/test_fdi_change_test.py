@@ -101,7 +101,13 @@ def test_thresholds_file_memory_is_validated(tmp_path):
         f.write_text(f"[thresholds]\nrun_length_s = {bad}\n")
         with pytest.raises(ValueError, match="run_length_s"):
             Thresholds.load(f)
-    for key, bad in (("long_stroke_s", "-1"), ("long_stroke_s", "true"), ("long_stroke_drift", "-0.5"),
+    for bad, key in (("1.0", "filter_sd_weight"), ('{"K_ext" = 0.0}', "K_ext"), ('{"K_int" = -1.0}', "K_int"),
+                     ('{"offset" = "1"}', "offset")):
+        f.write_text(f"[thresholds]\nfilter_sd_weight = {bad}\n")
+        with pytest.raises(ValueError, match=key):
+            Thresholds.load(f)
+    for key, bad in (("trigger_level", "0"), ("trigger_level", "1.5"), ("trigger_level", "true"),
+                     ("long_stroke_s", "-1"), ("long_stroke_s", "true"), ("long_stroke_drift", "-0.5"),
                      ("long_stroke_drift", "\"4\""), ("drift", "nan"), ("confirm_nats", "-1"),
                      ("confirm_nats", "\"20\""), ("confirm_nats", "nan"), ("confirm_nats", "true")):
         f.write_text(f"[thresholds]\n{key} = {bad}\n")
@@ -123,6 +129,36 @@ def test_the_cusum_memory_is_reported():
     out = run_filter(runs.inp)
     assert diagnose(out, Thresholds.shipped(), 0).thresholds["cusum_memory_s"] == 0.5
     assert diagnose(out, Thresholds(), 0).thresholds["cusum_memory_s"] is None
+    shipped = diagnose(out, Thresholds.shipped(), 0).thresholds
+    assert shipped["trigger_level"] == 0.1 and shipped["false_alarm_level"] == 0.01
+    assert shipped["filter_sd_weight"] == {"K_int": 1.0, "K_extA": 0.0, "K_extB": 0.0, "offset": 1.0}
+
+
+def test_change_residual_spread_follows_the_weights():
+    """d_p = (estimate - baseline) / sqrt((w_p sd_filter)^2 + sigma_p[regime]^2): with the
+    shipped weights the external leaks' change is counted in their healthy spread alone (w = 0),
+    K_int's and the offset's with the filter's std too (w = 1); a file without weights counts
+    both for all."""
+    from dataclasses import replace
+    from sam import load_plant
+    from fdi.detect import PARAMS, baseline_values, change_residuals, held
+    from fdi.synth import input_signal, simulate_runs
+    from fdi.ukf import run_filter
+    th = Thresholds.shipped()
+    assert th.filter_sd_weight == {"K_int": 1.0, "K_extA": 0.0, "K_extB": 0.0, "offset": 1.0}
+    assert Thresholds().sd_weight("K_extA") == 1.0
+    t = np.arange(2501) * DT
+    out = run_filter(simulate_runs(load_plant().vector()[None], input_signal("sine", t), DT, seed=3).inp)
+    for weights in (th.filter_sd_weight, {p: 1.0 for p in PARAMS}, {p: 0.5 for p in PARAMS}):
+        th_w = replace(th, filter_sd_weight=weights)
+        d, reg, _ = change_residuals(out, th_w)
+        base = baseline_values(out, th_w, held(out, th_w))
+        k = np.flatnonzero(d["K_extA"][0] != 0.0)[::97]  # armed samples
+        assert len(k) > 10
+        for i, (p, j) in enumerate(PARAMS.items()):
+            sigma = np.asarray(th.sigma[p])[reg[0, k]]
+            spread = np.sqrt((weights[p] * out.std[0, k, j]) ** 2 + sigma**2)
+            np.testing.assert_allclose(d[p][0, k], (out.mean[0, k, j] - base[0, i]) / spread, rtol=1e-12)
 
 
 def test_tune_runs_last_what_the_level_is_stated_for():
