@@ -608,7 +608,9 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
              f"{'that the bank confirmed ' if likelihood and th.confirm_nats > 0 else ''}per run): "
              f"{m['false_alarm_rate']:.3f}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"
                                                                   for b, v in zip(bins, m["false_alarm_by_load"]))
-             + f"; runs with any CUSUM alarm (confirmed or withdrawn): {m['trigger_rate']:.3f}", "",
+             + f"; runs with any CUSUM alarm (confirmed or withdrawn): {m['trigger_rate']:.3f}"
+             + ("" if th.trigger_level is None else
+                f" (the h were set for {th.trigger_level:g} of the nuisance study's healthy runs)"), "",
              f"Isolation decisions within 1 s of the onset (fault runs detected within 1 s): "
              f"{m['isolation_decisions_within_1s']}, of which wrong (named another fault hypothesis): "
              f"{m['wrong_isolation_decisions']}" + (f" = {wr:.3f}" if math.isfinite(wr) else ""), "",

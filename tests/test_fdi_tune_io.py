@@ -241,6 +241,7 @@ def test_withdrawn_alarms_are_not_false_alarms(tmp_path):
     assert row["detected_within_1s"] == pytest.approx(1 - 1 / row["runs"])
     md = (tmp_path / "metrics.md").read_text()
     assert f"that the bank confirmed per run): {1 / n:.3f}" in md and f"withdrawn): {3 / n:.3f}" in md
+    assert "(the h were set for 0.1 of the nuisance study's healthy runs)" in md  # the shipped trigger level
 
 
 def test_metrics_md_tables_with_units_and_no_exclusive_column(tmp_path):
