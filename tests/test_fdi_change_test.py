@@ -161,6 +161,18 @@ def test_change_residual_spread_follows_the_weights():
             np.testing.assert_allclose(d[p][0, k], (out.mean[0, k, j] - base[0, i]) / spread, rtol=1e-12)
 
 
+@given(sd=st.floats(0.0, 1e-8), sigma=st.floats(1e-12, 1e-8), w=st.floats(0.0, 2.0), dw=st.floats(0.0, 1.0))
+@settings(max_examples=200, deadline=None)
+def test_change_spread_is_the_root_sum_of_squares(sd, sigma, w, dw):
+    """change_spread over a box of leak-sized spreads (SI): never below the healthy spread nor the
+    weighted filter std, at most their sum, sigma itself at w = 0, and growing with w."""
+    from fdi.detect import change_spread
+    s = float(change_spread(np.array(sd), np.array(sigma), w))
+    assert s >= sigma and s >= w * sd * (1 - 1e-12) and s <= (sigma + w * sd) * (1 + 1e-12)
+    assert float(change_spread(np.array(sd), np.array(sigma), 0.0)) == sigma
+    assert float(change_spread(np.array(sd), np.array(sigma), w + dw)) >= s
+
+
 def test_tune_runs_last_what_the_level_is_stated_for():
     """Healthy tune runs last the thresholds' run_length_s; fault runs the tune's 4 s."""
     from dataclasses import replace
