@@ -254,6 +254,10 @@ class Thresholds:
             v = data.get(key)
             if v is not None and not (_is_number(v) and lo <= v <= hi):
                 raise ValueError(f"{key!r} = {v!r} is not {what}")
+        level, trigger = data.get("false_alarm_level", cls.false_alarm_level), data.get("trigger_level")
+        if trigger is not None and _is_number(level) and trigger < level:
+            raise ValueError(f"'trigger_level' = {trigger!r} is below 'false_alarm_level' = {level!r}: the CUSUM "
+                             "alarms (triggers) the bank confirms cannot be rarer than the false alarms")
         weights = data.get("filter_sd_weight", {})
         if not isinstance(weights, dict):
             raise ValueError(f"'filter_sd_weight' = {weights!r} is not a table of weights per parameter ({', '.join(PARAMS)})")

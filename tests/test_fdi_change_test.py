@@ -106,6 +106,9 @@ def test_thresholds_file_memory_is_validated(tmp_path):
         f.write_text(f"[thresholds]\nfilter_sd_weight = {bad}\n")
         with pytest.raises(ValueError, match=key):
             Thresholds.load(f)
+    f.write_text("[thresholds]\nfalse_alarm_level = 0.01\ntrigger_level = 0.005\n")
+    with pytest.raises(ValueError, match="below 'false_alarm_level'"):
+        Thresholds.load(f)
     for key, bad in (("trigger_level", "0"), ("trigger_level", "1.5"), ("trigger_level", "true"),
                      ("long_stroke_s", "-1"), ("long_stroke_s", "true"), ("long_stroke_drift", "-0.5"),
                      ("long_stroke_drift", "\"4\""), ("drift", "nan"), ("confirm_nats", "-1"),
