@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 
 from sam.errors import UserError, output_folder
@@ -63,6 +64,11 @@ def add_commands(subparsers) -> None:
                    help="rate of CUSUM alarms per healthy run the h are set for (default 0.1; between the "
                         "false-alarm level 0.01 and 1): each alarm is a trigger that the likelihood bank confirms "
                         "or withdraws, which keeps the false alarms at 0.01 per run")
+    g.add_argument("--position-sensor", default="encoder", choices=("encoder", "linear"),
+                   help="the position sensor of the recordings the thresholds are for: encoder (default; the "
+                        "joint angle theta from the quantised encoder, or x computed from it) or linear (x from a "
+                        "linear transducer, 10 um white noise); replay picks the shipped file of the sensor it "
+                        "finds and warns when a given file was derived for another")
     g.add_argument("--out", required=True, help="output folder: thresholds.toml, thresholds.md, thresholds_gsa.json")
     g.add_argument("--force", action="store_true", help="overwrite existing output files")
     g.set_defaults(func=_thresholds)
@@ -99,7 +105,7 @@ def _load_thresholds(path):
     from .detect import Thresholds
 
     if not path:
-        return Thresholds.shipped()
+        return None  # the shipped file of the recording's position sensor (replay) or of the encoder
     try:
         th = Thresholds.load(path)
         from .ukf import preset
@@ -136,7 +142,8 @@ def _thresholds(args) -> int:
     out = output_folder(args.out, OUTPUT_FILES, args.force)
     th, report = compute_thresholds(plant, N_leak=args.n_leak, N_nuisance=args.n_nuisance, trigger_level=trigger,
                                     workers=args.workers, filter=args.filter, detector=args.detector,
-                                    vote_rule=args.votes, progress=True, sample_dt_s=round(k) * 1e-3)
+                                    vote_rule=args.votes, progress=True, sample_dt_s=round(k) * 1e-3,
+                                    position_sensor=args.position_sensor)
     print(describe(th))
     for p in write_thresholds(th, report, out):
         print(f"wrote {p}")
@@ -168,7 +175,9 @@ def _replay(args) -> int:
             f"{k} x{v['factor']:.4f} (+-{100 * v['relative_sd']:.2f} %)" for k, v in cal.items()))
     if diag.filter_health.get("decimated_by"):
         print(f"kept 1 sample in {diag.filter_health['decimated_by']}: the thresholds are for "
-              f"{1 / th.sample_dt_s:g} Hz")
+              f"{1 / diag.filter_health['dt_s']:.4g} Hz")
+    if diag.filter_health.get("position_sensor_warning"):
+        print(f"warning: {diag.filter_health['position_sensor_warning']}", file=sys.stderr)
     if diag.filter_health.get("nan_samples"):
         print(f"predicted through {diag.filter_health['nan_samples']} sample(s) with missing measurements")
     if diag.filter_health.get("u_gaps_held"):

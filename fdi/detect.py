@@ -87,10 +87,15 @@ REGIMES = ("hold", "extend-transient", "extend-steady", "retract-transient", "re
 #: Fault parameter behind each change residual, and the hypotheses it serves.
 PARAMS = {"K_int": I_KINT, "K_extA": I_KEXTA, "K_extB": I_KEXTB, "offset": I_OFFSET}
 SHIPPED_THRESHOLDS = Path(__file__).resolve().parents[1] / "scenarios" / "faults" / "thresholds.toml"
+#: the position sensors a thresholds file is derived for (:attr:`Thresholds.position_sensor`):
+#: "encoder", the joint angle from the SAM's quantised encoder (or x computed from it); "linear",
+#: x from a linear transducer with white noise (fdi.synth.POSITION_SENSORS). The shipped file of each
+SHIPPED_BY_SENSOR = {"encoder": SHIPPED_THRESHOLDS, "linear": SHIPPED_THRESHOLDS.with_name("thresholds_linear.toml")}
 
 
 #: The allowed values of the Thresholds fields that name a method.
-CHOICES = {"isolation": ("signature", "likelihood"), "detector": ("cusum", "glr")}
+CHOICES = {"isolation": ("signature", "likelihood"), "detector": ("cusum", "glr"),
+           "position_sensor": tuple(SHIPPED_BY_SENSOR)}
 
 
 #: s: the healthy-run lengths a thresholds file may state its level for: at least a tune fault
@@ -192,6 +197,11 @@ class Thresholds:
     #: on it (measured: the 1 kHz thresholds give 12 % false alarms on 500 Hz recordings), so
     #: replay refuses a recording sampled otherwise (``samfdi fdi thresholds --sample-rate``)
     sample_dt_s: float = 1e-3
+    #: the position sensor the thresholds were derived for (SHIPPED_BY_SENSOR): sigma and h depend
+    #: on it (measured, healthy 20 s runs, session 17: the encoder file gives 0.5 % false alarms
+    #: from the encoder, 0 % from x computed from it, 3.5 % from a linear x sensor with 10 um
+    #: white noise); files before session 17 were derived for the encoder
+    position_sensor: str = "encoder"
     #: absolute spread of each estimate (SI), for the confidence and the absolute residual r_*
     nuisance_sd: dict = field(default_factory=lambda: {
         "K_int": 1.00e-9, "K_extA": 5.14e-10, "K_extB": 6.07e-10, "offset": 5.19e-3})
@@ -269,8 +279,10 @@ class Thresholds:
         return cls(**data)
 
     @classmethod
-    def shipped(cls) -> "Thresholds":
-        return cls.load(SHIPPED_THRESHOLDS) if SHIPPED_THRESHOLDS.exists() else cls()
+    def shipped(cls, position_sensor: str = "encoder") -> "Thresholds":
+        """The shipped thresholds for a position sensor (SHIPPED_BY_SENSOR)."""
+        path = SHIPPED_BY_SENSOR[position_sensor]
+        return cls.load(path) if path.exists() else cls(position_sensor=position_sensor)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
@@ -773,7 +785,7 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
                     "run_length_s": th.run_length_s, "filter_sd_weight": {p: th.sd_weight(p) for p in PARAMS},
                     "cusum_memory_s": th.memory_s, "long_stroke_s": th.long_stroke_s,
                     "long_stroke_drift_sigma": th.long_stroke_drift,
-                    "isolation": th.isolation, "source": th.source},
+                    "isolation": th.isolation, "position_sensor": th.position_sensor, "source": th.source},
         note=note,
     )
 
@@ -841,8 +853,12 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
         # the member of each leading pair that is not the best single fault (either order)
         base = name.rstrip("+-")
         second = list(dict.fromkeys(m for p in d.pair_candidates for m in p.split(isolate.PAIR_SEP) if m != base))
-        note = (f"{name} alone is rejected at the {th.false_isolation_level:g} false-isolation level (pairs with "
-                f"{', '.join(second)} lead it by >= {margin:.2g} nats) but the second fault is not isolable")
+        pair_margin = isolate.margin_for(th.false_isolation_level, len(isolate.MULTI))
+        lead = max(pair_margin, isolate.confirm_evidence(th))
+        pairs = ", ".join(f"{p} ({d.pair_llr[p]:+.1f} nats)" if p in d.pair_llr else p for p in d.pair_candidates)
+        note = (f"no single fault explains the data after the alarm: the pairs {pairs} lead every single fault "
+                f"by >= {lead:.3g} nats, but none leads the others by {pair_margin:.3g} nats (the margin of a "
+                f"{th.false_isolation_level:g} false-isolation level): the second fault is not isolable")
         return "fault, not isolable", [name] + second, {name: size}, conf, None, lik, note
     if d.hypothesis is not None:
         return "fault", [name], {name: size}, conf, float(out.t[d.index]), lik, ""

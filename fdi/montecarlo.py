@@ -7,7 +7,7 @@ import numpy as np
 
 from sam import P, Plant
 
-from .synth import lpm, profile, random_input, simulate_runs
+from .synth import POSITION_SENSORS, lpm, profile, random_input, simulate_runs
 
 #: Nuisance parameters and their relative half-ranges: Table 1's parameters with the
 #: ranges narrowed to what a calibrated model still leaves uncertain.
@@ -36,14 +36,16 @@ def draw_inputs(n: int, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def make_batch(plant: Plant, n: int, seed: int, *, fault: str | None = None, size: float = 0.0,
-               duration: float = 4.0, dt: float = 1e-3, onset: float | np.ndarray = 1.5, nuisance: bool = True):
+               duration: float = 4.0, dt: float = 1e-3, onset: float | np.ndarray = 1.5, nuisance: bool = True,
+               position_sensor: str = "encoder"):
     """n runs; fault in K_int/K_extA/K_extB (size in L/min) or offset (size in fraction)
     stepping in at ``onset`` [s]: one time for every run, or an array (n,) of per-run times
     (run i is healthy for t < onset[i], faulty from the first sample with t >= onset[i]).
     The filter is given the nominal plant with healthy faults. The onset does not touch the
     seeded draws (loads, nuisance, inputs, noise), so runs with the same seed are paired
     whatever their onsets. ``runs.truth`` gets ``"onset_s"`` (n,) and ``"k_onset"`` (n,), the
-    index of run i's first faulty sample (also for healthy runs: where a fault would start)."""
+    index of run i's first faulty sample (also for healthy runs: where a fault would start).
+    ``position_sensor``: the position channel recorded (fdi.synth.POSITION_SENSORS)."""
     rng = np.random.default_rng(seed)
     T = int(round(duration / dt)) + 1
     t = np.arange(T) * dt
@@ -60,7 +62,8 @@ def make_batch(plant: Plant, n: int, seed: int, *, fault: str | None = None, siz
         value = size if fault == "offset" else lpm(size)
         faults = {fault: np.stack([profile("step", value, t, t0=float(o)) for o in onset_s])}
     nominal = np.tile(plant.vector(), (n, 1))
-    runs = simulate_runs(truth, u, dt, faults=faults, nominal=nominal, seed=seed + 1)
+    runs = simulate_runs(truth, u, dt, faults=faults, nominal=nominal, seed=seed + 1,
+                         **POSITION_SENSORS[position_sensor])
     runs.truth["params"] = truth  #: (B, len(P)) each run's true plant (its machine)
     runs.truth["m_L_kg"] = truth[:, P.m_L]  #: (B,) the unknown load of each run
     runs.truth["onset_s"] = onset_s  #: (B,) the fault onset of each run [s]
@@ -69,7 +72,7 @@ def make_batch(plant: Plant, n: int, seed: int, *, fault: str | None = None, siz
 
 
 def make_reference_batch(plant: Plant, machines: np.ndarray, seed: int, *, duration: float = 4.0,
-                         dt: float = 1e-3):
+                         dt: float = 1e-3, position_sensor: str = "encoder"):
     """A healthy reference recording of each machine (rows of ``machines``, (B, len(P)): the
     truth of a :func:`make_batch`), as a lab would record one before monitoring: the same
     valve, cylinder and fluid, another load (uniform over LOAD_RANGE) and another input, from
@@ -80,4 +83,5 @@ def make_reference_batch(plant: Plant, machines: np.ndarray, seed: int, *, durat
     truth[:, P.m_L] = rng.uniform(*LOAD_RANGE, n)
     t = np.arange(int(round(duration / dt)) + 1) * dt
     u = draw_inputs(n, t, rng)
-    return simulate_runs(truth, u, dt, nominal=np.tile(plant.vector(), (n, 1)), seed=int(rng.integers(1 << 31)))
+    return simulate_runs(truth, u, dt, nominal=np.tile(plant.vector(), (n, 1)), seed=int(rng.integers(1 << 31)),
+                         **POSITION_SENSORS[position_sensor])

@@ -15,6 +15,7 @@ import numpy as np
 from sam import P, Plant, Recording, UserError, simulate_batch
 from sam.errors import output_folder
 from sam.geometry import joint_angle, piston_position
+from sam.measurement import ENCODER_RESOLUTION_RAD
 
 from . import calibration
 from .detect import (
@@ -40,6 +41,30 @@ DT_TOLERANCE = 0.01
 POSITION_MARGIN_M = 0.005
 OUTPUT_FILES = ("estimates.csv", "residuals.csv", "diagnosis.json", "replay.png")
 FIGURE_CLIP = 5.0  #: the replay figure shows statistic / threshold up to this
+
+
+#: a recording's x counts as computed from the SAM's encoder when its samples, turned back into
+#: joint angles with the plant's geometry, sit on one grid of encoder pulses: the mean resultant
+#: length of their phases on that grid, |mean exp(2 pi i theta / pulse)|, is at least this (1 on
+#: a grid, whatever its zero; about 1 / sqrt(n) for a continuous reading)
+ENCODER_GRID_COHERENCE = 0.9
+
+
+def position_sensor(rec: Recording, plant: Plant) -> str:
+    """The position sensor of a recording (fdi.detect.SHIPPED_BY_SENSOR): "encoder" when the filter
+    reads theta or an x computed from the encoder's theta (on its grid,
+    :data:`ENCODER_GRID_COHERENCE`), "linear" for any other x. Why it matters: the thresholds
+    depend on it (Thresholds.position_sensor)."""
+    if "x" not in rec.signals:
+        return "encoder"
+    p = plant.vector()
+    x = np.asarray(rec.signals["x"], dtype=float)
+    theta = joint_angle(x[np.isfinite(x)], p[P.L_1], p[P.L_2], p[P.L_3])
+    theta = theta[np.isfinite(theta)]
+    if not len(theta):
+        return "linear"
+    coherence = abs(np.mean(np.exp(2j * np.pi * theta / ENCODER_RESOLUTION_RAD)))
+    return "encoder" if coherence >= ENCODER_GRID_COHERENCE else "linear"
 
 
 def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = False) -> tuple[FilterInput, dict]:
@@ -195,13 +220,18 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
            plant_name: str = "plant"):
     """Filter one recording and diagnose it. Returns (output, residuals, stats, diagnosis, info).
 
+    ``thresholds``: None, the shipped file of the recording's position sensor
+    (:func:`position_sensor`); a file derived for another sensor is used, with a warning in the
+    diagnosis' note.
+
     ``reference``: a healthy recording of the same machine whose learnt notch flows and bulk
     modulus replace the plant file's (:func:`learn_reference`); the change test keeps its own
     baseline. ``baseline``: a healthy recording whose estimates are the baseline instead
     (:func:`reference_baseline`; for faults present from the start), or (1, 4) baseline
     values; default: the recording's own estimates over the baseline window of the thresholds.
     ``plant_name``: how messages name the plant (its file)."""
-    thresholds = Thresholds.shipped() if thresholds is None else thresholds
+    sensor = position_sensor(rec, plant)
+    thresholds = Thresholds.shipped(sensor) if thresholds is None else thresholds
     cfg = preset(thresholds.filter) if cfg is None else cfg  # the filter the thresholds were made for
     rec, k = at_thresholds_rate(rec.measured(), thresholds)  # never the true_* columns
     inp, info = filter_input(rec, plant, drop_out_of_range=drop_out_of_range)
@@ -224,6 +254,13 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
     stats = statistics(out, thresholds, baseline)
     diag = diagnose(out, thresholds, 0, stats, baseline)
     stats = detector_statistics(out, thresholds, diag, baseline)  # restarted after withdrawn alarms
+    info["position_sensor"] = sensor
+    if thresholds.position_sensor != sensor:
+        warning = (f"the thresholds were derived for the {thresholds.position_sensor} position sensor, but the "
+                   f"recording's position reads as the {sensor} one: their false-alarm level does not hold (derive "
+                   f"thresholds with `samfdi fdi thresholds --position-sensor {sensor}`)")
+        info["position_sensor_warning"] = warning
+        diag.note = f"{diag.note}; {warning}" if diag.note else warning
     diag.filter_health.update(info)
     if info["out_of_range_samples"]:
         diag.filter_health["out_of_range_samples"] = info["out_of_range_samples"]
@@ -271,7 +308,7 @@ def replay_recording(rec: Recording, plant: Plant, out_dir, *, force: bool = Fal
                      figure: bool = True, baseline=None, reference=None, plant_name: str = "plant") -> Diagnosis:
     """Replay and write estimates.csv, residuals.csv, diagnosis.json and replay.png into out_dir."""
     out_dir = output_folder(out_dir, OUTPUT_FILES, force, create=False)
-    thresholds = Thresholds.shipped() if thresholds is None else thresholds
+    thresholds = Thresholds.shipped(position_sensor(rec, plant)) if thresholds is None else thresholds
     out, res, stats, diag, info = replay(rec, plant, thresholds=thresholds, drop_out_of_range=drop_out_of_range,
                                          baseline=baseline, reference=reference, plant_name=plant_name)
     output_folder(out_dir)

@@ -16,7 +16,12 @@ from sam.hydraulics import leak_coefficient
 from sam.measurement import quantise_angle
 from sam.geometry import joint_angle
 
-from .ukf import POS_THETA, POS_X, FilterInput
+from .ukf import POS_THETA, POS_X, FilterConfig, FilterInput
+
+#: the simulated position channel of each position sensor (fdi.detect.SHIPPED_BY_SENSOR): the
+#: SAM's quantised encoder, or x from a linear transducer with the white noise the filter
+#: assumes for one (FilterConfig.x_noise, 10 um)
+POSITION_SENSORS = {"encoder": {"position": "theta"}, "linear": {"position": "x", "x_noise": FilterConfig.x_noise}}
 
 FAULT_NAMES = ("K_int", "K_extA", "K_extB", "offset")
 
@@ -84,7 +89,7 @@ class Runs:
 def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict | None = None,
                   m_L: np.ndarray | None = None, nominal: np.ndarray | None = None,
                   pressure_noise: float = 20e3, quantise: bool = True, position: str = "theta",
-                  seed: int = 0, x0: float = 0.05) -> Runs:
+                  x_noise: float = 0.0, seed: int = 0, x0: float = 0.05) -> Runs:
     """Simulate B runs and add sensor noise.
 
     Args:
@@ -95,6 +100,7 @@ def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict 
         nominal: (B, len(P)) vectors the filter is given; default = params with
             healthy faults and the plant's own m_L.
         position: "theta" (quantised encoder) or "x".
+        x_noise: m, std of white noise on x (position "x"; drawn after the pressures' noise).
     """
     params = np.atleast_2d(np.asarray(params, dtype=float)).copy()
     B = params.shape[0]
@@ -128,7 +134,7 @@ def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict 
             th = quantise_angle(th)
         pos, kind = th, POS_THETA
     else:
-        pos, kind = x.copy(), POS_X
+        pos, kind = x + x_noise * rng.standard_normal((B, T)) if x_noise else x.copy(), POS_X
     if nominal is None:
         nominal = params.copy()
         for name in FAULT_NAMES:

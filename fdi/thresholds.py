@@ -41,7 +41,7 @@ from sam import P, Plant
 
 from .detect import (HYPOTHESES, MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, PARAMS, REGIMES, Thresholds, held,
                      change_spread, cusum_drift, long_stroke_mask, own_baseline, regimes)
-from .synth import random_input, simulate_runs
+from .synth import POSITION_SENSORS, random_input, simulate_runs
 from .ukf import preset, run_filter
 
 #: s: the studies simulate at SIM_DT and filter what a logger sampling every Thresholds.sample_dt_s
@@ -125,11 +125,15 @@ def _run_rows(params: np.ndarray, exp: np.ndarray, noise: np.ndarray, th: Thresh
     t = np.arange(T) * SIM_DT
     u = np.stack([_experiment(x, t) for x in exp])
     nominal = np.tile(_NOMINAL, (len(params), 1))
-    runs = simulate_runs(params, u, SIM_DT, faults=faults, nominal=nominal, pressure_noise=0.0)
-    for i, x in enumerate(noise):
+    sensor = dict(POSITION_SENSORS[th.position_sensor])
+    x_noise = sensor.pop("x_noise", 0.0)
+    runs = simulate_runs(params, u, SIM_DT, faults=faults, nominal=nominal, pressure_noise=0.0, **sensor)
+    for i, x in enumerate(noise):  # each row's noise from its own factor value
         r = np.random.default_rng(int(x * 2**31) + 17)
         runs.inp.pA[i] += 20e3 * r.standard_normal(T)
         runs.inp.pB[i] += 20e3 * r.standard_normal(T)
+        if x_noise:
+            runs.inp.pos[i] += x_noise * r.standard_normal(T)
     return run_filter(runs.inp.decimated(sample_factor(th.sample_dt_s)), preset(th.filter))
 
 
@@ -296,7 +300,8 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
                        glr_window_s: float = 0.5, vote_rule: str = "detectable",
                        progress: bool = False, sample_dt_s: float = SIM_DT, memory_s: float | None = MEMORY_S,
                        run_length_s: float = NUISANCE_DURATION,
-                       long_stroke_s: float | None = LONG_STROKE_S) -> tuple[Thresholds, dict]:
+                       long_stroke_s: float | None = LONG_STROKE_S,
+                       position_sensor: str = "encoder") -> tuple[Thresholds, dict]:
     """Run both studies and derive the thresholds. Returns (thresholds, report). ``vote_rule``
     (:data:`VOTE_RULES`): "detectable" (the default: a residual votes for f where f's share of
     it over the leakage box is at least VOTE_SNR healthy spreads; for the "likelihood"
@@ -311,7 +316,8 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     CUSUM alarms per healthy run h is set for (>= ``fa_level``; the bank's confirmation keeps the
     false alarms at ``fa_level``; None: h at ``fa_level``); ``filter_sd_weight``: per parameter,
     the weight of the filter's std in its change residual (None: :data:`FILTER_SD_WEIGHT`);
-    ``long_stroke_s``: the long-stroke rule (Thresholds.long_stroke_s; None: none)."""
+    ``long_stroke_s``: the long-stroke rule (Thresholds.long_stroke_s; None: none);
+    ``position_sensor``: the position channel both studies simulate (fdi.synth.POSITION_SENSORS)."""
     import warnings
 
     from gsa import analyze, saltelli_design
@@ -327,6 +333,8 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
                          f"{fa_level:g} and 1")
     if not MIN_RUN_LENGTH_S <= run_length_s <= MAX_RUN_LENGTH_S:
         raise ValueError(f"run_length_s: {run_length_s!r} s is outside {MIN_RUN_LENGTH_S:g}-{MAX_RUN_LENGTH_S:g} s")
+    if position_sensor not in POSITION_SENSORS:
+        raise ValueError(f"position_sensor: {position_sensor!r} is not one of {', '.join(POSITION_SENSORS)}")
 
     _init(plant.vector())
     preset(filter)  # a known filter name
@@ -336,7 +344,8 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     th0 = replace(Thresholds(), drift=drift, filter_sd_weight=weights, filter=filter, detector=detector,
                   glr_start_s=glr_start_s,
                   glr_window_s=glr_window_s, sample_dt_s=sample_factor(sample_dt_s) * SIM_DT,
-                  memory_s=memory_s, run_length_s=run_length_s, long_stroke_s=long_stroke_s)
+                  memory_s=memory_s, run_length_s=run_length_s, long_stroke_s=long_stroke_s,
+                  position_sensor=position_sensor)
     lp, npb = _problems()
     names = output_names()
     with warnings.catch_warnings():
@@ -413,6 +422,7 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
                          + ("" if filter == "shipped" else f", filter {filter}")
                          + ("" if vote_rule == "detectable" else f", votes {vote_rule}")
                          + f", healthy runs {run_length_s:g} s"
+                         + ("" if position_sensor == "encoder" else f", {position_sensor} position sensor")
                          + ("" if th1.sample_dt_s == SIM_DT else f", sampled at {1 / th1.sample_dt_s:g} Hz")))
     if detector == "glr":
         from .glr import glr_threshold
@@ -505,7 +515,7 @@ def describe(th: Thresholds) -> str:
              f"false-alarm level {th.false_alarm_level:g} per {th.run_length_s:g} s run"
              + ("" if th.trigger_level is None else
                 f" (h for CUSUM alarms at {th.trigger_level:g} per run; an alarm stands when the bank "
-                f"confirms it by {th.confirm_nats:g} nats)"), "",
+                f"confirms it by {th.confirm_nats:g} nats)") + f"; for the {th.position_sensor} position sensor", "",
              "| hypothesis | h [sigma s] |", "|---|---|"]
     lines += [f"| {k} | {v:.3g} |" for k, v in th.h.items()]
     alone = [p for p in th.sigma if th.sd_weight(p) == 0.0]

@@ -44,6 +44,7 @@ from . import bound as onset_bound
 from . import calibration, isolate
 from .detect import HYPOTHESES, Thresholds, alarm_judging, statistics
 from .montecarlo import make_batch, make_reference_batch
+from .synth import POSITION_SENSORS
 from .ukf import preset, run_filter
 
 FAULT_SIZES = {"K_int": (0.1, 0.25, 0.5, 1.0), "K_extA": (0.1, 0.25, 0.5, 1.0),
@@ -62,6 +63,9 @@ REFERENCE_S = 4.0  #: s, length of the healthy reference recording of ``--refere
 #: no fault named on an end stop where it cannot act, and the confirmation bank with the
 #: calibration uncertain (session 15; "v" had the first alone)
 CHUNK_VERSION = "w"
+#: how each position sensor is simulated (fdi.synth.POSITION_SENSORS), for metrics.md
+POSITION_SENSOR_TEXT = {"encoder": "the joint angle from the quantised encoder",
+                        "linear": f"x from a linear transducer, white noise {POSITION_SENSORS['linear']['x_noise'] * 1e6:g} um"}
 LOAD_BINS = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))
 HYP = tuple(HYPOTHESES)
 MANIFEST = "tune.json"  #: the settings the folder's chunks were made with (:func:`manifest`)
@@ -93,10 +97,12 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, reference: bo
     of :func:`fdi.bound.onset_evidence` per run (healthy runs: at the onsets a fault run of
     the chunk would have)."""
     onset = ONSET if fault is None else draw_onsets(n, seed)
-    runs = make_batch(plant, n, seed, fault=fault, size=size, duration=run_seconds(th, fault), onset=onset)
+    runs = make_batch(plant, n, seed, fault=fault, size=size, duration=run_seconds(th, fault), onset=onset,
+                      position_sensor=th.position_sensor)
     inp, cfg = runs.inp, preset(th.filter)
     if reference:
-        ref = make_reference_batch(plant, runs.truth["params"], seed, duration=REFERENCE_S)
+        ref = make_reference_batch(plant, runs.truth["params"], seed, duration=REFERENCE_S,
+                                   position_sensor=th.position_sensor)
         inp, cfg = calibration.apply(inp, cfg, calibration.learn(run_filter(ref.inp, cfg), cfg))
     out = run_filter(inp, cfg)
     st, th = _alarm_statistics(out, th)
@@ -602,6 +608,8 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
     wr = m["wrong_isolation_rate"]
     lines = ["# FDI tuning metrics", "",
              f"Thresholds: {th.source} (not fitted to these runs).", "",
+             f"Position sensor: {th.position_sensor} ({POSITION_SENSOR_TEXT[th.position_sensor]}), as the "
+             "thresholds were derived for.", "",
              *([f"Every machine was first calibrated on a healthy {REFERENCE_S:g} s reference recording of its own (another "
                  "load and input): `--reference`, as `fdi replay --reference` does.", ""] if reference else []),
              f"Held-out healthy runs: {m['healthy_runs']} x {run_seconds(th, None):g} s; false-alarm rate (any alarm "
