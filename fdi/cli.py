@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 from sam.errors import UserError, output_folder
+
+#: the position sensors of fdi.detect.SHIPPED_BY_SENSOR (literal: the parser is built without
+#: importing fdi's numerics; tests/test_fdi_position_sensor.py checks they agree)
+SENSORS = ("encoder", "linear")
 
 
 def add_commands(subparsers) -> None:
@@ -17,7 +20,12 @@ def add_commands(subparsers) -> None:
     r.add_argument("recording", help="recording file (.csv or .mat, see recording-format.md)")
     r.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
     r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--thresholds", help="thresholds.toml from `samfdi fdi thresholds` (default: the shipped one)")
+    r.add_argument("--thresholds", help="thresholds.toml from `samfdi fdi thresholds` (default: the shipped one of "
+                   "the position sensor)")
+    r.add_argument("--position-sensor", choices=SENSORS,
+                   help="the position sensor of the recording: encoder (theta, or x computed from the encoder's "
+                        "theta) or linear (x from a linear transducer); default: found from the recording (x on the "
+                        "encoder's grid of pulses: encoder). Chooses the shipped thresholds of that sensor")
     r.add_argument("--reference", help="healthy recording of the same machine: the notch flows and bulk modulus "
                    "learnt there replace the plant file's (recommended; the change test keeps this recording's "
                    "own baseline)")
@@ -64,7 +72,7 @@ def add_commands(subparsers) -> None:
                    help="rate of CUSUM alarms per healthy run the h are set for (default 0.1; between the "
                         "false-alarm level 0.01 and 1): each alarm is a trigger that the likelihood bank confirms "
                         "or withdraws, which keeps the false alarms at 0.01 per run")
-    g.add_argument("--position-sensor", default="encoder", choices=("encoder", "linear"),
+    g.add_argument("--position-sensor", default="encoder", choices=SENSORS,
                    help="the position sensor of the recordings the thresholds are for: encoder (default; the "
                         "joint angle theta from the quantised encoder, or x computed from it) or linear (x from a "
                         "linear transducer, 10 um white noise); replay picks the shipped file of the sensor it "
@@ -162,7 +170,12 @@ def _replay(args) -> int:
     ref = read_recording(args.reference) if args.reference else None
     diag = replay_recording(rec, plant, args.out, force=args.force, thresholds=th,
                             drop_out_of_range=args.drop_out_of_range, baseline=base, reference=ref,
-                            plant_name=args.plant or "the shipped plant (scenarios/plants/sam.toml)")
+                            plant_name=args.plant or "the shipped plant (scenarios/plants/sam.toml)",
+                            position_sensor=args.position_sensor)
+    if th is None and diag.thresholds["position_sensor"] != "encoder":
+        print(f"position sensor: {diag.thresholds['position_sensor']} "
+              f"({'as given' if args.position_sensor else 'x is not on the encoder grid'}): the shipped "
+              f"thresholds for it ({diag.thresholds['source']})")
     line = f"{diag.status}"
     if diag.isolated:  # the bank may name another hypothesis than the one that alarmed first
         line += ": " + ", ".join(f"{h} {diag.size[h]['value']:.3g} {diag.size[h]['unit']}" if h in diag.size else h
@@ -176,8 +189,6 @@ def _replay(args) -> int:
     if diag.filter_health.get("decimated_by"):
         print(f"kept 1 sample in {diag.filter_health['decimated_by']}: the thresholds are for "
               f"{1 / diag.filter_health['dt_s']:.4g} Hz")
-    if diag.filter_health.get("position_sensor_warning"):
-        print(f"warning: {diag.filter_health['position_sensor_warning']}", file=sys.stderr)
     if diag.filter_health.get("nan_samples"):
         print(f"predicted through {diag.filter_health['nan_samples']} sample(s) with missing measurements")
     if diag.filter_health.get("u_gaps_held"):

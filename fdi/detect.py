@@ -89,7 +89,7 @@ PARAMS = {"K_int": I_KINT, "K_extA": I_KEXTA, "K_extB": I_KEXTB, "offset": I_OFF
 SHIPPED_THRESHOLDS = Path(__file__).resolve().parents[1] / "scenarios" / "faults" / "thresholds.toml"
 #: the position sensors a thresholds file is derived for (:attr:`Thresholds.position_sensor`):
 #: "encoder", the joint angle from the SAM's quantised encoder (or x computed from it); "linear",
-#: x from a linear transducer with white noise (fdi.synth.POSITION_SENSORS). The shipped file of each
+#: x from a linear transducer with white noise (fdi.synth.POSITION_SENSORS); the shipped file of each
 SHIPPED_BY_SENSOR = {"encoder": SHIPPED_THRESHOLDS, "linear": SHIPPED_THRESHOLDS.with_name("thresholds_linear.toml")}
 
 

@@ -612,7 +612,6 @@ class Decision:
     confirmed: bool = True
     confirm_index: int = -1  #: recording sample of the confirmation (-1: not confirmed)
     lead_max: float = float("nan")  #: largest lead of the best fault over "none" from the alarm on [nats]
-    lead_last: float = float("nan")  #: ... and that lead at the window's last sample [nats]
     window_end: int = -1  #: one past the last recording sample the alarm was judged on
     #: recording samples of earlier alarms of the run that were withdrawn (not confirmed)
     withdrawn: list = field(default_factory=list)
@@ -662,7 +661,6 @@ def decide(bank: BankResult, i: int, k_alarm: int, margin: float, confirm: float
     onset = int(bank.start[i, hb])
     k0 = int(bank.k0[i])
     stands = {"alarm": int(k_alarm), "confirmed": bool(len(stood)), "lead_max": float(lead.max()),
-              "lead_last": float(lead[-1]),
               "confirm_index": k0 + start + int(stood[0]) if len(stood) else -1}
     if len(ok):
         return Decision(FAULTS[best], k0 + at, [FAULTS[best]], llr, llr_none, k0, onset, size, size_sd, **stands)
@@ -709,7 +707,8 @@ def best_single(d: Decision) -> str:
     return d.hypothesis if d.hypothesis is not None else max(d.llr, key=d.llr.get)
 
 
-def decide_pair(bank: BankResult, i: int, margin: float, d: Decision, second: float = -math.inf) -> Decision:
+def decide_pair(bank: BankResult, i: int, margin: float, d: Decision,
+                second_fault_nats: float = -math.inf) -> Decision:
     """Several faults in run i of the several-faults bank (:func:`run_pairs`, hypotheses
     MULTI), decided ONCE, at the window's last sample (a fixed sample size: looking at every
     sample would test many times; measured: a 0.5 + 0.5 L/min K_int + K_extA pair is led by
@@ -720,7 +719,7 @@ def decide_pair(bank: BankResult, i: int, margin: float, d: Decision, second: fl
     of such members ahead of every single by the margin but not of each other go to
     d.pair_candidates. d.pair_llr: each pair minus the best single [nats]. Returns d.
 
-    ``second`` [nats]: the evidence a pair needs over the best single when that exceeds the
+    ``second_fault_nats``: the evidence a pair needs over the best single when that exceeds the
     margin, the confirmation evidence of an alarm (:func:`confirm_evidence`): the pair's second
     member is a second fault, held to the evidence the first needed (the same inflation of the
     likelihoods by the uncertain calibration, ``Thresholds.confirm_nats``). Measured: a -5 %
@@ -740,7 +739,7 @@ def decide_pair(bank: BankResult, i: int, margin: float, d: Decision, second: fl
     d.pair_nis = {names[q]: float(bank.nis[i, q]) for q in range(len(names))}
     big = [all(abs(bank.change[i, ns + q, FAULTS.index(m)]) >= MIN_PAIR_SIZE[m] for m in names[ns + q].split(PAIR_SEP))
            for q in range(len(names) - ns)]
-    lead = max(margin, second)
+    lead = max(margin, second_fault_nats)
     if not (srt[-1] - single >= lead and srt[-1] - srt[-2] >= margin and big[int(np.argmax(ll[ns:]))]):
         d.pair_candidates = [p for q, (p, v) in enumerate(d.pair_llr.items()) if v >= lead and big[q]]
         return d
@@ -804,7 +803,7 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     ``pairs`` (several faults), every single fault and pair restarted after the alarm
     (:func:`run_pairs`) up to ``pair_horizon_s`` after it (None: the record's end), never
     beyond ``k_stop``, decided by :func:`decide_pair` with the margin of the same level for
-    ten hypotheses (confirmed alarms only).
+    ten hypotheses and, over the singles, at least ``confirm`` (confirmed alarms only).
 
     ``confirm`` [nats] (:func:`confirm_evidence`): an alarm whose window never has the best fault
     ahead of the healthy hypothesis by this much is withdrawn. With ``restart``, a function of

@@ -100,7 +100,7 @@ def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict 
         nominal: (B, len(P)) vectors the filter is given; default = params with
             healthy faults and the plant's own m_L.
         position: "theta" (quantised encoder) or "x".
-        x_noise: m, std of white noise on x (position "x"; drawn after the pressures' noise).
+        x_noise: m, std of white noise on x (position "x" only; drawn after the pressures' noise).
     """
     params = np.atleast_2d(np.asarray(params, dtype=float)).copy()
     B = params.shape[0]
@@ -134,7 +134,8 @@ def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict 
             th = quantise_angle(th)
         pos, kind = th, POS_THETA
     else:
-        pos, kind = x + x_noise * rng.standard_normal((B, T)) if x_noise else x.copy(), POS_X
+        pos = x + x_noise * rng.standard_normal((B, T)) if x_noise else x.copy()
+        kind = POS_X
     if nominal is None:
         nominal = params.copy()
         for name in FAULT_NAMES:

@@ -89,7 +89,8 @@ FILTER_SD_WEIGHT = {"K_int": 1.0, "K_extA": 0.0, "K_extB": 0.0, "offset": 1.0}
 #: sigma s: the smallest h. Where the healthy runs never lift a CUSUM off 0 (their change
 #: residual stays within the drift: K_int and K_extB in the session-10 studies, maxima ~1e-4)
 #: the quantile is ~0 and would alarm on the first sample above the drift; the floor asks for
-#: 20 ms of one spread beyond it. (Session 11's 20 s studies put every h above it.)
+#: 20 ms of one spread beyond it. (Session 11's 20 s studies put every h above it; session 17's for
+#: the linear position sensor put K_int's on it.)
 H_FLOOR = 0.02
 #: Base sample size of the nuisance GSA. Its healthy runs also set h, a (1 - 0.002) quantile of
 #: their CUSUM maxima, and a Saltelli design has only 2N distinct experiments (input signals)

@@ -303,7 +303,8 @@ def _differences(old: dict, new: dict) -> list:
     if old.get("runs") != new["runs"]:
         out.append(f"--runs {old.get('runs')} there, {new['runs']} now")
     if old.get("thresholds_sha256") != new["thresholds_sha256"]:
-        out.append("other thresholds (--thresholds)")
+        out.append("other thresholds (--thresholds; or the same file read by another samfdi version, whose "
+                   "thresholds have other fields)")
     if old.get("plant_sha256") != new["plant_sha256"]:
         out.append("another plant (--plant)")
     if old.get("layout") != new["layout"]:

@@ -418,7 +418,7 @@ def _pair_bank(lead: float) -> "iso.BankResult":
 
 
 def test_second_fault_needs_the_confirmation_evidence():
-    """decide_pair with ``second`` (the confirmation evidence, 20 nats): a pair 9 nats ahead of
+    """decide_pair with ``second_fault_nats`` (the confirmation evidence, 20 nats): a pair 9 nats ahead of
     the best single (beyond the ten-hypothesis margin, 6.8 nats) is named without it and not
     with it, neither as several faults nor as a candidate; 25 nats ahead it is named with it."""
     m = iso.margin_for(0.01, len(iso.MULTI))
@@ -429,9 +429,9 @@ def test_second_fault_needs_the_confirmation_evidence():
 
     assert 6.0 < m < 9.0
     assert iso.decide_pair(_pair_bank(9.0), 0, m, offset()).several == ["K_int", "K_extA"]
-    weak = iso.decide_pair(_pair_bank(9.0), 0, m, offset(), second=20.0)
+    weak = iso.decide_pair(_pair_bank(9.0), 0, m, offset(), second_fault_nats=20.0)
     assert not weak.several and not weak.pair_candidates and weak.revised is None
-    strong = iso.decide_pair(_pair_bank(25.0), 0, m, offset(), second=20.0)
+    strong = iso.decide_pair(_pair_bank(25.0), 0, m, offset(), second_fault_nats=20.0)
     assert strong.several == ["K_int", "K_extA"]
     assert strong.several_size["K_int"] == pytest.approx(0.6 * iso.K_PER_LPM)
 

@@ -12,7 +12,7 @@ import pytest
 from sam import load_plant
 from sam.scenario import load_scenario, run_scenario
 from fdi.detect import SHIPPED_BY_SENSOR, Thresholds
-from fdi.replay import position_sensor, replay
+from fdi.replay import detect_position_sensor, replay
 from fdi.synth import POSITION_SENSORS, simulate_runs
 from fdi.ukf import I_X, POS_THETA, POS_X
 
@@ -20,31 +20,52 @@ SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
 
 
 @pytest.fixture(scope="module")
-def cycle():
-    """The shipped healthy 20 s cycle at 250 kg, measured columns only (x computed from the encoder)."""
-    return run_scenario(load_scenario(SCENARIOS / "healthy_cycle_20s_250kg.toml")).measured()
+def recorded():
+    """The shipped healthy 20 s cycle at 250 kg (x computed from the encoder, and the true x)."""
+    return run_scenario(load_scenario(SCENARIOS / "healthy_cycle_20s_250kg.toml"))
+
+
+@pytest.fixture(scope="module")
+def cycle(recorded):
+    """Its measured columns only."""
+    return recorded.measured()
+
+
+@pytest.fixture(scope="module")
+def linear_x(recorded):
+    """What a linear transducer with 10 um of white noise reads on that run [m]."""
+    x = recorded.truth["true_x"]
+    return x + 1e-5 * np.random.default_rng(5).standard_normal(len(x))
 
 
 def _with_x(rec, x):
     return replace(rec, signals={**{k: v for k, v in rec.signals.items() if k != "theta"}, "x": x})
 
 
-def test_sensor_of_a_recording(cycle):
-    """theta, and x computed from the encoder's theta (on its grid; also with 1 um of noise or
-    rounded to 1 um), read as the encoder; x with 10 um of white noise reads as a linear sensor."""
+def test_sensor_of_a_recording(recorded, cycle, linear_x):
+    """theta, and x computed from the encoder's theta (on its grid; also with 1 um of noise, rounded
+    to 10 um, or read with the plant's L_1 1 mm off the logger's), read as the encoder; the true x,
+    noise-free or with 10 um of white noise (a linear transducer), as a linear sensor; an x that
+    never moves as the encoder."""
     plant = load_plant()
+    off = load_plant(overrides={"boom": {"L_1": plant.boom.L_1 + 1e-3}})
     x = cycle.signals["x"]
     noise = np.random.default_rng(5).standard_normal(len(x))
-    assert position_sensor(replace(cycle, signals={k: v for k, v in cycle.signals.items() if k != "x"}), plant) == "encoder"
-    assert position_sensor(_with_x(cycle, x), plant) == "encoder"
-    assert position_sensor(_with_x(cycle, x + 1e-6 * noise), plant) == "encoder"
-    assert position_sensor(_with_x(cycle, np.round(x / 1e-6) * 1e-6), plant) == "encoder"
-    assert position_sensor(_with_x(cycle, x + 1e-5 * noise), plant) == "linear"
+    assert detect_position_sensor(replace(cycle, signals={k: v for k, v in cycle.signals.items() if k != "x"}),
+                                  plant) == "encoder"
+    for on_grid, p in ((x, plant), (x + 1e-6 * noise, plant), (np.round(x / 1e-5) * 1e-5, plant), (x, off),
+                       (np.full_like(x, 0.1), plant)):
+        assert detect_position_sensor(_with_x(cycle, on_grid), p) == "encoder"
+    for continuous in (recorded.truth["true_x"], linear_x):
+        assert detect_position_sensor(_with_x(cycle, continuous), plant) == "linear"
 
 
 def test_each_sensor_has_a_shipped_file():
-    """Every simulated sensor has a shipped thresholds file derived for it, and loads as such."""
-    assert set(POSITION_SENSORS) == set(SHIPPED_BY_SENSOR)
+    """Every simulated sensor has a shipped thresholds file derived for it, and loads as such; the
+    command line offers the same sensors."""
+    from fdi.cli import SENSORS
+
+    assert set(POSITION_SENSORS) == set(SHIPPED_BY_SENSOR) == set(SENSORS)
     for sensor, path in SHIPPED_BY_SENSOR.items():
         assert path.exists()
         assert Thresholds.shipped(sensor).position_sensor == sensor
@@ -67,13 +88,12 @@ def test_linear_sensor_noise_is_simulated():
     np.testing.assert_array_equal(lin.inp.pA, exact.inp.pA)
 
 
-def test_replay_picks_the_thresholds_of_the_sensor(cycle):
+def test_replay_picks_the_thresholds_of_the_sensor(cycle, linear_x):
     """Without --thresholds, replay reads a linear x with the linear sensor's file and theta with
     the encoder's; a linear x read with the encoder's file is diagnosed with a warning that names
     the sensor and the command that derives thresholds for it."""
     plant = load_plant()
-    x = cycle.signals["x"] + 1e-5 * np.random.default_rng(5).standard_normal(cycle.n)
-    linear = _with_x(cycle, x)
+    linear = _with_x(cycle, linear_x)
     d = replay(linear, plant)[3]
     assert d.thresholds["position_sensor"] == "linear" and d.filter_health["position_sensor"] == "linear"
     assert "position_sensor_warning" not in d.filter_health
@@ -99,28 +119,64 @@ def test_threshold_studies_simulate_the_sensor():
     plant = load_plant()
     T._init(plant.vector())
     params = np.tile(plant.vector(), (2, 1))
-    exp, noise = np.array([0.1, 0.5]), np.array([0.2, 0.3])
+    exp, noise = np.array([0.1, 0.1]), np.array([0.2, 0.3])  # one experiment, two noise draws
     enc = T._run_rows(params, exp, noise, Thresholds.shipped("encoder"))
     lin = T._run_rows(params, exp, noise, Thresholds.shipped("linear"))
     assert enc.inp.pos_kind == POS_THETA and lin.inp.pos_kind == POS_X
     np.testing.assert_array_equal(enc.inp.pA, lin.inp.pA)
-    x_true = lin.mean[:, :, I_X]  # the filter's x follows the sensor to within its noise
-    err = lin.inp.pos - x_true
+    x_filter = lin.mean[:, :, I_X]  # the filter's x follows the sensor to within its noise
+    err = lin.inp.pos - x_filter
     assert 0.5e-5 < np.std(err[:, 500:]) < 1.5e-5
-    assert not np.array_equal(lin.inp.pos[0], lin.inp.pos[1])
+    np.testing.assert_array_equal(enc.inp.pos[0], enc.inp.pos[1])  # the same run ...
+    assert np.std(lin.inp.pos[0] - lin.inp.pos[1]) > 1e-5  # ... with the noise of its row
 
 
-def test_cli_warns_when_the_file_is_for_another_sensor(cycle, tmp_path, capsys):
-    """`fdi replay --thresholds` with the encoder's file on a linear x recording: the diagnosis is
-    written, and stderr names the sensors and the command that derives thresholds for it."""
+def test_cli_names_the_sensor_and_warns_on_another(cycle, linear_x, tmp_path, capsys):
+    """`fdi replay` of a linear x recording says it uses the linear sensor's thresholds; with
+    `--position-sensor encoder` it uses the encoder's (as given) and so does `--thresholds` with the
+    encoder's file, whose note names the sensors and the command that derives thresholds."""
+    import json
+
     from sam import write_recording
     from samfdi.cli import main
 
-    x = cycle.signals["x"] + 1e-5 * np.random.default_rng(5).standard_normal(cycle.n)
     path = tmp_path / "linear.csv"
-    write_recording(path, _with_x(cycle, x))
+    write_recording(path, _with_x(cycle, linear_x))
+    assert main(["fdi", "replay", str(path), "--out", str(tmp_path / "a")]) == 0
+    assert "position sensor: linear (x is not on the encoder grid)" in capsys.readouterr().out
+    assert main(["fdi", "replay", str(path), "--position-sensor", "encoder", "--out", str(tmp_path / "b")]) == 0
+    used = json.loads((tmp_path / "b" / "diagnosis.json").read_text())
+    assert used["thresholds"]["position_sensor"] == used["filter_health"]["position_sensor"] == "encoder"
+    capsys.readouterr()
     code = main(["fdi", "replay", str(path), "--thresholds", str(SHIPPED_BY_SENSOR["encoder"]),
-                 "--out", str(tmp_path / "r")])
-    err = capsys.readouterr().err
-    assert code == 0 and (tmp_path / "r" / "diagnosis.json").exists()
-    assert "derived for the encoder position sensor" in err and "--position-sensor linear" in err
+                 "--out", str(tmp_path / "c")])
+    out = capsys.readouterr().out
+    assert code == 0 and (tmp_path / "c" / "diagnosis.json").exists()
+    assert "derived for the encoder position sensor" in out and "--position-sensor linear" in out
+
+
+def test_thresholds_and_tune_simulate_the_sensor(tmp_path, monkeypatch):
+    """`fdi thresholds --position-sensor linear` derives for that sensor, and the tune's runs are
+    simulated with the sensor of its thresholds file (the calls, captured)."""
+    from fdi import montecarlo, thresholds, tune
+    from samfdi.cli import main
+
+    seen = {}
+
+    def fake_compute(plant, **kw):
+        seen["thresholds"] = kw["position_sensor"]
+        return Thresholds.shipped(kw["position_sensor"]), {}
+
+    monkeypatch.setattr(thresholds, "compute_thresholds", fake_compute)
+    monkeypatch.setattr(thresholds, "write_thresholds", lambda th, rep, out: [])
+    assert main(["fdi", "thresholds", "--position-sensor", "linear", "--out", str(tmp_path / "th")]) == 0
+    assert seen["thresholds"] == "linear"
+
+    def fake_batch(*a, **kw):
+        seen["tune"] = kw["position_sensor"]
+        raise RuntimeError("captured")
+
+    monkeypatch.setattr(tune, "make_batch", fake_batch)
+    with pytest.raises(RuntimeError, match="captured"):
+        tune._chunk_job(load_plant(), Thresholds.shipped("linear"), None, 0.0, 2, 1)
+    assert seen["tune"] == "linear" and montecarlo.make_batch is not fake_batch
