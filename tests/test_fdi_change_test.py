@@ -164,6 +164,35 @@ def test_change_residual_spread_follows_the_weights():
             np.testing.assert_allclose(d[p][0, k], (out.mean[0, k, j] - base[0, i]) / spread, rtol=1e-12)
 
 
+def test_restart_relearns_only_the_wandering_baselines():
+    """After a withdrawn alarm the tests restart (detect.restarted_statistics) with the baselines of
+    K_int and the offset re-learnt as the run's mean estimates over the REBASE_S before the restart,
+    and those of the external leaks kept: each restarted statistic equals the test run from that
+    sample with exactly those baselines; a run not restarted keeps all of its own."""
+    from sam import load_plant
+    from fdi.detect import PARAMS, REBASE_PARAMS, REBASE_S, WANDERING, baseline_values, restarted_statistics, statistics
+    from fdi.synth import input_signal, simulate_runs
+    from fdi.ukf import run_filter
+    th = Thresholds.shipped()
+    assert REBASE_PARAMS == WANDERING == ("K_int", "offset")
+    t = np.arange(6001) * DT
+    params = np.tile(load_plant().vector(), (2, 1))
+    out = run_filter(simulate_runs(params, input_signal("sine", t), DT, seed=4).inp)
+    start = np.array([4000, 0])
+    got = restarted_statistics(out, th)(start)
+    base = baseline_values(out, th)
+    n = int(round(REBASE_S / DT))
+    cols = list(PARAMS.values())
+    expected = np.array(base, dtype=float)
+    for i, p in enumerate(PARAMS):
+        if p in REBASE_PARAMS:
+            expected[0, i] = out.mean[0, 4000 - n:4000, cols[i]].mean()
+    assert not np.allclose(expected[0], base[0])  # the re-learnt ones moved
+    want = statistics(out, th, expected, start)
+    for h in got:
+        np.testing.assert_array_equal(got[h], want[h])
+
+
 @given(sd=st.floats(0.0, 1e-8), sigma=st.floats(1e-12, 1e-8), w=st.floats(0.0, 2.0), dw=st.floats(0.0, 1.0))
 @settings(max_examples=200, deadline=None)
 def test_change_spread_is_the_root_sum_of_squares(sd, sigma, w, dw):
