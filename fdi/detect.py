@@ -39,6 +39,7 @@ import numpy as np
 from sam import P, stroke_ends
 from sam.errors import did_you_mean
 
+from .strokes import directions, long_strokes
 from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, I_X, FilterOutput, leak_lpm
 
 #: Fault hypotheses and the state each one reads (sign: +1 above healthy, -1 below).
@@ -301,41 +302,14 @@ CONFUSABLE = {frozenset(("K_int", "offset-")), frozenset(("K_extA", "offset-")),
               frozenset(("K_extB", "offset+"))}
 
 
-def _directions(u: np.ndarray, dt: float, band: float) -> tuple[np.ndarray, np.ndarray]:
-    """Direction of the input u (B, T) per sample (0 hold |u| <= band, 1 extension, 2
-    retraction) and the time [s] since that direction was entered, both (B, T)."""
-    u = np.atleast_2d(np.nan_to_num(u))
-    d = np.where(u > band, 1, np.where(u < -band, 2, 0))
-    B, T = u.shape
-    change = np.ones((B, T), dtype=bool)
-    change[:, 1:] = d[:, 1:] != d[:, :-1]
-    idx = np.where(change, np.arange(T)[None, :], 0)
-    np.maximum.accumulate(idx, axis=1, out=idx)
-    return d, (np.arange(T)[None, :] - idx) * dt
-
-
 def regimes(u: np.ndarray, dt: float, band: float = 0.3, transient_s: float = 0.3) -> np.ndarray:
     """Regime index (REGIMES) per sample of the input u (B, T)."""
-    d, since = _directions(u, dt, band)
+    d, since = directions(u, dt, band)
     out = np.zeros(d.shape, dtype=np.int8)
     trans = since < transient_s
     out[d == 1] = np.where(trans[d == 1], 1, 2)
     out[d == 2] = np.where(trans[d == 2], 3, 4)
     return out
-
-
-def long_strokes(u: np.ndarray, dt: float, band: float, after_s: float) -> np.ndarray:
-    """(B, T) bool: the samples from ``after_s`` into an extension or a retraction (the input
-    beyond +-band in one direction) until ``after_s`` into the rest that follows it
-    (:attr:`Thresholds.long_stroke_s`). The rest after a stroke is held, not the next stroke:
-    with back-to-back strokes the first ``after_s`` of each stroke stay tested, so that a
-    machine reversing in long strokes is never blind for the whole recording."""
-    d, since = _directions(u, dt, band)
-    inside = (d != 0) & (since > after_s)
-    k = np.arange(d.shape[1])[None, :]
-    last = np.where(inside, k, np.iinfo(np.int64).min // 2)
-    np.maximum.accumulate(last, axis=1, out=last)
-    return inside | ((d == 0) & ((k - last) * dt <= after_s))
 
 
 def pinned(out: FilterOutput, th: "Thresholds") -> np.ndarray:

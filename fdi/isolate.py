@@ -264,12 +264,16 @@ def _rows(inp, rows: np.ndarray, k0: int, k1: np.ndarray, L: int):
 
 
 def run_reference(out: FilterOutput, rows: np.ndarray, k_end: np.ndarray) -> FilterOutput:
-    """The healthy reference filter of runs ``rows`` over [0, max k_end) (one batched call)."""
+    """The healthy reference filter of runs ``rows`` over [0, max k_end) (one batched call). It
+    holds its calibration in long strokes where the detecting filter ``out`` does
+    (FilterConfig.calib_hold_after_s): the bank starts from its calibration."""
     inp = out.inp
     L = int(max(1, np.max(k_end)))
     seg = _rows(inp, rows, np.zeros(len(rows), dtype=np.int64), np.minimum(k_end, inp.u.shape[1]), L)
     sub = replace(inp, params=inp.params[rows], **seg)
-    return run_filter(sub, reference_config(), n_steps=np.minimum(k_end, inp.u.shape[1]))
+    cfg = reference_config().with_(calib_hold_after_s=out.config.calib_hold_after_s,
+                                   calib_hold_band_V=out.config.calib_hold_band_V)
+    return run_filter(sub, cfg, n_steps=np.minimum(k_end, inp.u.shape[1]))
 
 
 @dataclass

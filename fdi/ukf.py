@@ -46,6 +46,8 @@ from sam.hydraulics import leak_coefficient
 from sam.hydraulics import leak_lpm as _leak_lpm
 from sam.measurement import ENCODER_RESOLUTION_RAD
 
+from .strokes import long_strokes
+
 N_MODEL = 7
 #: Augmented states beyond the model state, and the parameter each one drives.
 AUG_PARAMS = ("K_int", "K_extA", "K_extB", "offset", "F_d")
@@ -146,6 +148,16 @@ class FilterConfig:
     calibrate: tuple = ("m_L", "B_eff", "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT")
     p0_calib: float = 0.02  #: initial std of each calibration state (relative)
     q_calib: float = 0.002  #: its process-noise std per sqrt(s) (relative)
+    #: s: inside a long stroke, from this long after a stroke of the input began until this long
+    #: into the rest after it (fdi.strokes.long_strokes, the detector's long-stroke samples, with
+    #: ``calib_hold_band_V``), the calibration states' random walk stops (None: never). Why: in a
+    #: steady stroke nothing fixes them, and they drift along directions the data do not see
+    #: (measured, session 17, 650 kg, a 15 s extension: m_L +46 -> +154 % with F_d -4 -> -36 kN,
+    #: B_eff -1 -> -14 %) and snap back at the reversal, which the bank then read as K_int
+    #: (docs/fdi.md, "Known limitations"). The fault parameters and F_d keep theirs, so that a
+    #: fault that begins inside a long stroke still moves its estimate.
+    calib_hold_after_s: float | None = 2.0
+    calib_hold_band_V: float = 0.3  #: V: the input's hold band for ``calib_hold_after_s``
     #: per-parameter (name, p0, q) overrides of p0_calib/q_calib. The load mass is
     #: unknown (0-800 kg around a nominal 494 kg): relative std 0.25, 0.05/sqrt(s).
     #: B_eff: Table 1's +-10 % as its prior, a slow walk of 0.5 %/sqrt(s).
@@ -534,7 +546,7 @@ def _truncate_leaks(z, Pm, shrink_cov, min_mass):
 def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind, Wm, Wc, lam, act, n_act,
          clip_leaks, project_mean, project_internal, constraint_mode, truncate_cov, truncate_min_mass,
          freeze_k, freeze_mask, freeze_sd, symmetrise, nis_alpha, nis_limit, jitter, dt, n_sub,
-         out_z, out_sd, out_nu, out_nis, counts, out_ll, n_steps):
+         out_z, out_sd, out_nu, out_nis, counts, out_ll, n_steps, q_gate, gate_mask):
     """Run B filters over T samples.
 
     z0 (B,n) scaled initial means; P0 (B,n,n); Qd (n,n) scaled process noise per
@@ -676,11 +688,13 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                         a = wi * dev[i, j]
                         for l in range(min(j + 1, N_MODEL)):
                             Pm[b, j, l] += a * dev[i, l]
+                gk = q_gate[b, k]
                 for j in range(n):
                     for l in range(j + 1):
                         acc = Pm[b, j, l]
-                        Pm[b, j, l] = acc + Qd[j, l]
-                        Pm[b, l, j] = acc + Qd[l, j]
+                        qv = Qd[j, l] * gk if gate_mask[j] else Qd[j, l]
+                        Pm[b, j, l] = acc + qv
+                        Pm[b, l, j] = acc + qv
         # ---------------- update
         # filterpy (1.4.5) redraws the sigma points from the prior (x-, P- including Q) for the
         # update (at k = 0 the prior is the initial x0, P0); _ut_measure_exact gives the same
@@ -1001,6 +1015,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     P0 = np.broadcast_to(P0, (B, n, n))
     if held.any() and np.any((P0 != 0.0) & held[:, :, None] & ~held[:, None, :]):
         raise ValueError("run_filter: a held state has prior covariance with a free one (P0)")
+    q_gate, gate_mask = _calibration_hold(inp, cfg, n)
     _run(np.ascontiguousarray(z0[order], dtype=float), np.ascontiguousarray(P0[order], dtype=float), Qd, Rd,
          np.ascontiguousarray(inp.u[order], dtype=float), np.ascontiguousarray(y[order]),
          np.ascontiguousarray(pS[order]),
@@ -1009,7 +1024,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
          _CONSTRAINTS[cfg.constraint], bool(cfg.truncate_cov), float(cfg.truncate_min_mass),
          freeze_k, freeze_mask, float(cfg.freeze_sd_factor), bool(cfg.symmetrise),
          float(nis_alpha), float(nis_limit), float(cfg.jitter), float(inp.dt), model_substeps(inp.dt),
-         out_z, out_sd, out_nu, out_nis, counts, out_ll, steps[order])
+         out_z, out_sd, out_nu, out_nis, counts, out_ll, steps[order], q_gate[order], gate_mask)
     if not isinstance(order, slice):  # results in the caller's order
         back = np.argsort(order)
         out_z, out_sd, out_nu, out_nis, counts, out_ll = (
@@ -1033,10 +1048,10 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
 PRESETS = {
     "shipped": FilterConfig(),
     "calibrated": FilterConfig(
-        constraint="project_joint", theta_noise_floor=1e-4,
+        constraint="project_joint", theta_noise_floor=1e-4, calib_hold_after_s=None,
         calibrate=("m_L", "B_eff", "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT"),
         calib_noise=(("m_L", 0.25, 0.05), ("B_eff", 0.1, 0.005))),
-    "legacy": FilterConfig(constraint="project", theta_noise_floor=2e-5, calibrate=(),
+    "legacy": FilterConfig(constraint="project", theta_noise_floor=2e-5, calibrate=(), calib_hold_after_s=None,
                            calib_noise=(("m_L", 0.25, 0.05),)),
 }
 #: Session 5 variants of "calibrated" (options; measured in docs/fdi-history.md, "Session 5"; none
@@ -1054,6 +1069,19 @@ PRESETS["calibrated_softfreeze"] = PRESETS["calibrated"].with_(
     freeze_calib_s=1.5, calib_free=("m_L", "B_eff"), freeze_sd_factor=0.5)
 PRESETS["calibrated_softfreeze_kint3"] = PRESETS["calibrated_kint3"].with_(
     freeze_calib_s=1.5, calib_free=("m_L", "B_eff"), freeze_sd_factor=0.5)
+
+
+def _calibration_hold(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The process-noise gate of :attr:`FilterConfig.calib_hold_after_s`: (B, T) factors on the
+    random walk (0 in long strokes, 1 elsewhere) and the (n,) states they apply to (the
+    calibration states)."""
+    B, T = inp.u.shape
+    mask = np.zeros(n, dtype=np.bool_)
+    if cfg.calib_hold_after_s is None or not cfg.calibrate:
+        return np.ones((B, T)), mask
+    mask[N_AUG:N_AUG + len(cfg.calibrate)] = True
+    held = long_strokes(inp.u, inp.dt, cfg.calib_hold_band_V, cfg.calib_hold_after_s)
+    return np.ascontiguousarray(np.where(held, 0.0, 1.0)), mask
 
 
 def preset(name: str) -> FilterConfig:

@@ -252,6 +252,34 @@ def test_freeze_calibration_states(plant_vector):
     assert np.ptp(out.mean[0, 401:, 12]) > 0  # m_L stays free
 
 
+def test_calibration_random_walk_stops_in_long_strokes(plant_vector):
+    """FilterConfig.calib_hold_after_s: the calibration states' random walk stops exactly on the
+    long-stroke samples of the input (fdi.strokes.long_strokes) and nowhere else, the fault
+    parameters and F_d keep theirs. In a 6 s steady extension (u = 2 V, from 2 s into it) a
+    calibration state's std then only shrinks, while without the hold it grows by its walk; up to
+    the first long-stroke sample both filters are identical."""
+    from fdi.strokes import long_strokes
+    from fdi.ukf import N_AUG, _calibration_hold
+
+    T = 6001
+    u = np.full(T, 2.0)
+    runs = simulate_runs(plant_vector[None], u, DT, seed=8)
+    hold = FilterConfig(calibrate=("m_L", "B_eff"))
+    assert hold.calib_hold_after_s == 2.0
+    gate, mask = _calibration_hold(runs.inp, hold, N_AUG + 2)
+    long = long_strokes(u[None], DT, hold.calib_hold_band_V, 2.0)
+    np.testing.assert_array_equal(gate == 0.0, long)
+    np.testing.assert_array_equal(np.flatnonzero(mask), [N_AUG, N_AUG + 1])
+    k0 = int(np.argmax(long[0]))
+    assert 1990 < k0 < 2010
+    on = run_filter(runs.inp, hold)
+    off = run_filter(runs.inp, hold.with_(calib_hold_after_s=None))
+    assert np.max(np.abs(on.mean[0, :k0] - off.mean[0, :k0]) / state_scale(on.config)) < 1e-12
+    j = N_AUG + 1  # B_eff
+    assert np.all(np.diff(on.std[0, k0:, j]) <= 1e-15 * on.std[0, k0, j])
+    assert off.std[0, -1, j] > on.std[0, -1, j]
+
+
 def test_soft_freeze_shrinks_calibration_std(plant_vector):
     """freeze_sd_factor > 0: at the freeze the (non-free) calibration states keep their mean,
     their std is multiplied by the factor, and from then on they have no process noise."""
