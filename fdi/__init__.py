@@ -2,6 +2,7 @@
 
 * :mod:`fdi.ukf`: the batched augmented-state UKF over ``sam.step_batch``;
 * :mod:`fdi.detect`: residuals, CUSUM alarms, diagnosis;
+* :mod:`fdi.strokes`: strokes of the valve input (the long-stroke rules of the filter and the detector);
 * :mod:`fdi.isolate`: isolation and size by likelihood (a bank of constrained filters);
 * :mod:`fdi.replay`: offline replay of a recording (``samfdi fdi replay``);
 * :mod:`fdi.signatures`, :mod:`fdi.tune`: signature tables, Monte Carlo thresholds.
