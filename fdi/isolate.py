@@ -141,9 +141,9 @@ ONSET_LEAD_S = 0.1
 #: before the change time. Session 16, every 0.05 s from 0.1 s before it (the same cost): on new
 #: populations (100 runs per case, 10 cases) wrong isolations 24 -> 11, offsets -1 / -2 %
 #: 84 / 92 -> 87 / 97 %, K_extB 0.25 L/min 78 -> 82 %, false alarms 1 -> 0 of 200; on the
-#: held-out tune a run or two per case either way; six starts gained nothing more. Its cost: the
-#: shipped -5 % offset in a 40 s cycle is named offset- at once and then "not isolable" by the
-#: pair test instead of revised to offset- (docs/fdi.md, "Known limitations").
+#: held-out tune a run or two per case either way; six starts gained nothing more. (The shipped
+#: -5 % offset in a 20 s cycle, then named offset- at once, was "not isolable" by the pair test
+#: until session 17 asked a second fault for the confirmation evidence: decide_pair.)
 START_STEP_S = 0.05
 N_STARTS = 4
 #: s: the bank decides no earlier than this long after its first candidate onset k0, i.e.
