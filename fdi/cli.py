@@ -85,7 +85,8 @@ def add_commands(subparsers) -> None:
     t.add_argument("--thresholds", help="thresholds.toml (default: the shipped one)")
     t.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
     t.add_argument("--runs", type=int, default=100, help="healthy runs N (default 100), each as long as the thresholds' "
-                   "run_length_s (20 s for the shipped ones); fault runs of 4 s: max(5, N // 5) per fault type and size")
+                   "run_length_s (20 s for the shipped ones), and max(5, N // 2) more of 20-60 s extend/retract "
+                   "cycles; fault runs of 4 s: max(5, N // 5) per fault type and size")
     t.add_argument("--workers", type=int, default=1,
                    help="local worker processes (a process pool; --scheduler runs on a dask cluster instead)")
     t.add_argument("--scheduler", help="dask scheduler address, e.g. tcp://host:8786")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sam import P, Plant
+from sam import P, Plant, profiles
 
 from .synth import POSITION_SENSORS, lpm, profile, random_input, simulate_runs
 
@@ -18,6 +18,15 @@ NUISANCE = {
 }
 LOAD_RANGE = (0.0, 800.0)  #: kg, unknown to the filter
 INPUTS = ("sine", "cycle", "prbs")
+#: The issue's 20-60 s extend/retract cycles as a healthy population of their own (the tune's
+#: "healthy_long" runs; not in the threshold studies: fdi.synth.CYCLE_PERIOD_S says why). Each
+#: run: a random period, amplitude and phase, no dwell or a dwell of half of each stroke, and a
+#: random start position, so that some long strokes end on an end stop and some reverse in mid
+#: stroke (a reversal after a long steady stroke: docs/fdi.md, "Known limitations").
+LONG_CYCLES = {"period_s": (20.0, 60.0), "amplitude_V": (1.0, 4.0), "dwell_fraction": (0.0, 0.5),
+               "x0_m": (0.02, 0.40)}
+#: the input families of make_batch: the studies' mix, and the long cycles
+INPUT_FAMILIES = ("standard", "long_cycles")
 
 
 def draw_truth(plant: Plant, n: int, rng: np.random.Generator, nuisance: bool = True) -> np.ndarray:
@@ -35,9 +44,24 @@ def draw_inputs(n: int, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.stack([random_input(str(kind), t, rng) for kind in kinds]) if n else np.empty((0, len(t)))
 
 
+def draw_long_cycles(n: int, t: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(u (n, T) [V], x0 (n,) [m]): n runs of LONG_CYCLES, each drawn in this order: period,
+    amplitude, dwell fraction (one of the two), phase (uniform over the period), start position."""
+    c = LONG_CYCLES
+    u, x0 = np.empty((n, len(t))), np.empty(n)
+    for i in range(n):
+        period = rng.uniform(*c["period_s"])
+        amplitude = rng.uniform(*c["amplitude_V"])
+        dwell = float(rng.choice(c["dwell_fraction"]))
+        phase = rng.uniform(0.0, period)
+        u[i] = profiles.cycle_input(t + phase, amplitude, period, dwell_fraction=dwell)
+        x0[i] = rng.uniform(*c["x0_m"])
+    return u, x0
+
+
 def make_batch(plant: Plant, n: int, seed: int, *, fault: str | None = None, size: float = 0.0,
                duration: float = 4.0, dt: float = 1e-3, onset: float | np.ndarray = 1.5, nuisance: bool = True,
-               position_sensor: str = "encoder"):
+               position_sensor: str = "encoder", inputs: str = "standard"):
     """n runs; fault in K_int/K_extA/K_extB (size in L/min) or offset (size in fraction)
     stepping in at ``onset`` [s]: one time for every run, or an array (n,) of per-run times
     (run i is healthy for t < onset[i], faulty from the first sample with t >= onset[i]).
@@ -45,7 +69,11 @@ def make_batch(plant: Plant, n: int, seed: int, *, fault: str | None = None, siz
     seeded draws (loads, nuisance, inputs, noise), so runs with the same seed are paired
     whatever their onsets. ``runs.truth`` gets ``"onset_s"`` (n,) and ``"k_onset"`` (n,), the
     index of run i's first faulty sample (also for healthy runs: where a fault would start).
-    ``position_sensor``: the position channel recorded (fdi.synth.POSITION_SENSORS)."""
+    ``position_sensor``: the position channel recorded (fdi.synth.POSITION_SENSORS).
+    ``inputs``: "standard" (the studies' sine / cycle / PRBS mix from x = 0.05 m) or
+    "long_cycles" (LONG_CYCLES, each from its own start position)."""
+    if inputs not in INPUT_FAMILIES:
+        raise ValueError(f"inputs: one of {', '.join(INPUT_FAMILIES)}, got {inputs!r}")
     rng = np.random.default_rng(seed)
     T = int(round(duration / dt)) + 1
     t = np.arange(T) * dt
@@ -56,13 +84,16 @@ def make_batch(plant: Plant, n: int, seed: int, *, fault: str | None = None, siz
         raise ValueError(f"onset: a float or an array of shape ({n},), got shape {onset_s.shape}")
     k_onset = np.searchsorted(t, onset_s, side="left").astype(np.int64)  # first k with t[k] >= onset
     truth = draw_truth(plant, n, rng, nuisance)
-    u = draw_inputs(n, t, rng)
+    if inputs == "long_cycles":
+        u, x0 = draw_long_cycles(n, t, rng)
+    else:
+        u, x0 = draw_inputs(n, t, rng), 0.05
     faults = None
     if fault is not None:
         value = size if fault == "offset" else lpm(size)
         faults = {fault: np.stack([profile("step", value, t, t0=float(o)) for o in onset_s])}
     nominal = np.tile(plant.vector(), (n, 1))
-    runs = simulate_runs(truth, u, dt, faults=faults, nominal=nominal, seed=seed + 1,
+    runs = simulate_runs(truth, u, dt, faults=faults, nominal=nominal, seed=seed + 1, x0=x0,
                          **POSITION_SENSORS[position_sensor])
     runs.truth["params"] = truth  #: (B, len(P)) each run's true plant (its machine)
     runs.truth["m_L_kg"] = truth[:, P.m_L]  #: (B,) the unknown load of each run

@@ -23,6 +23,13 @@ def directions(u: np.ndarray, dt: float, band: float) -> tuple[np.ndarray, np.nd
     return d, (np.arange(T)[None, :] - idx) * dt
 
 
+def first_motion(u: np.ndarray, band: float) -> np.ndarray:
+    """(B,) index of the first sample at which the input u (B, T) [V] leaves the hold band
+    (|u| > band); T where it never does."""
+    moving = np.abs(np.nan_to_num(np.atleast_2d(u))) > band
+    return np.where(moving.any(axis=1), moving.argmax(axis=1), moving.shape[1])
+
+
 def long_strokes(u: np.ndarray, dt: float, band: float, after_s: float) -> np.ndarray:
     """(B, T) bool: the samples from ``after_s`` into an extension or a retraction (the input
     beyond +-band in one direction) until ``after_s`` into the rest that follows it. The rest

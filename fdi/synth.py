@@ -89,7 +89,7 @@ class Runs:
 def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict | None = None,
                   m_L: np.ndarray | None = None, nominal: np.ndarray | None = None,
                   pressure_noise: float = 20e3, quantise: bool = True, position: str = "theta",
-                  x_noise: float = 0.0, seed: int = 0, x0: float = 0.05) -> Runs:
+                  x_noise: float = 0.0, seed: int = 0, x0: float | np.ndarray = 0.05) -> Runs:
     """Simulate B runs and add sensor noise.
 
     Args:
@@ -101,6 +101,7 @@ def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict 
             healthy faults and the plant's own m_L.
         position: "theta" (quantised encoder) or "x".
         x_noise: m, std of white noise on x (position "x" only; drawn after the pressures' noise).
+        x0: m, the piston's start position, at rest: one for all runs or (B,) one per run.
     """
     params = np.atleast_2d(np.asarray(params, dtype=float)).copy()
     B = params.shape[0]

@@ -43,7 +43,7 @@ from sam.errors import output_folder
 from . import bound as onset_bound
 from . import calibration, isolate
 from .detect import HYPOTHESES, Thresholds, alarm_judging, statistics
-from .montecarlo import make_batch, make_reference_batch
+from .montecarlo import LONG_CYCLES, make_batch, make_reference_batch
 from .synth import POSITION_SENSORS
 from .ukf import preset, run_filter
 
@@ -88,7 +88,8 @@ def draw_onsets(n: int, seed: int) -> np.ndarray:
     return np.round(rng.uniform(ONSET_MIN, ONSET_MAX, n) / DT) * DT
 
 
-def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, reference: bool = False, bound: bool = False):
+def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, inputs: str = "standard", reference: bool = False,
+               bound: bool = False):
     """Filter one chunk; per run and hypothesis: first alarm index (-1: none) and the
     maxima of g/h before the run's onset, within 1 s after it, and over the run; per run
     the onset index ``k_onset``. ``reference``: each machine is first calibrated on a healthy
@@ -98,7 +99,7 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, reference: bo
     the chunk would have)."""
     onset = ONSET if fault is None else draw_onsets(n, seed)
     runs = make_batch(plant, n, seed, fault=fault, size=size, duration=run_seconds(th, fault), onset=onset,
-                      position_sensor=th.position_sensor)
+                      position_sensor=th.position_sensor, inputs=inputs)
     inp, cfg = runs.inp, preset(th.filter)
     if reference:
         ref = make_reference_batch(plant, runs.truth["params"], seed, duration=REFERENCE_S,
@@ -202,16 +203,26 @@ def _bank_decisions(out, st, th: Thresholds, k_onset: np.ndarray, faulty: bool) 
 
 
 def _jobs(n_runs: int):
-    """(name, fault, size, runs, seed) per chunk: ``n_runs`` healthy runs, and max(CHUNK // 5,
-    n_runs // 5) runs of each fault type and size (the --runs help states this rule)."""
-    jobs = [("healthy", None, 0.0, min(CHUNK, n_runs - c), 1000 + c) for c in range(0, n_runs, CHUNK)]
+    """(name, fault, size, runs, seed, inputs) per chunk: ``n_runs`` healthy runs of the studies'
+    inputs, max(5, n_runs // 2) healthy runs of the issue's 20-60 s cycles
+    (fdi.montecarlo.LONG_CYCLES) and max(CHUNK // 5, n_runs // 5) runs of each fault type and size
+    (the --runs help states this rule)."""
+    jobs = [("healthy", None, 0.0, min(CHUNK, n_runs - c), 1000 + c, "standard") for c in range(0, n_runs, CHUNK)]
+    n_long = long_cycle_runs(n_runs)
+    jobs += [("healthy_long", None, 0.0, min(CHUNK, n_long - c), 300_000 + c, "long_cycles")
+             for c in range(0, n_long, CHUNK)]
     n_fault = max(CHUNK // 5, n_runs // 5)
     for fault, sizes in FAULT_SIZES.items():
         for size in sizes:
             for c in range(0, n_fault, CHUNK):
                 jobs.append((f"{fault}_{size:g}", fault, size, min(CHUNK, n_fault - c),
-                             500_000 + c + int(abs(size) * 1e4) + (7 if size < 0 else 0)))
+                             500_000 + c + int(abs(size) * 1e4) + (7 if size < 0 else 0), "standard"))
     return jobs
+
+
+def long_cycle_runs(n_runs: int) -> int:
+    """The number of healthy long-cycle runs of a tune with ``--runs n_runs``."""
+    return max(CHUNK // 5, n_runs // 2)
 
 
 def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, scheduler: str | None = None,
@@ -458,12 +469,7 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
     chunk_dir = Path(out_dir) / "chunks"
     healthy = _load(chunk_dir, jobs, "healthy", tag)
     hmax = healthy["max"][:, :, 2].max(axis=1)  # per run: max over hypotheses of g/h
-    trigger_runs = hmax > 1.0
-    # a false alarm is an alarm that stood (confirmed by the bank) when the chunks have them
-    fa_runs = healthy["conf_k"] >= 0 if "conf_k" in healthy else trigger_runs
-    fa = float(fa_runs.mean())
-    hb = _load_bin(healthy["m_L"])
-    fa_by_load = [float(fa_runs[hb == i].mean()) if (hb == i).any() else float("nan") for i in range(len(LOAD_BINS))]
+    rates = _healthy_rates(healthy)
     scales = np.geomspace(0.25, 4, 17)
     roc = {"scale": scales.tolist(), "false_alarm": [float((hmax > s).mean()) for s in scales], "detection": {}}
     has_bound = "evidence" in healthy
@@ -483,14 +489,16 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
     smallest, smallest_by_load, smallest_bound = _smallest_sizes(rows, has_bound)
     n_dec = sum(r["decisions_within_1s"] for r in rows)
     n_wrong = sum(r["wrong_decisions"] for r in rows)
-    metrics = {"false_alarm_rate": fa, "false_alarm_by_load": fa_by_load, "healthy_runs": int(len(hmax)),
-               "trigger_rate": float(trigger_runs.mean()),
+    metrics = {"false_alarm_rate": rates["false_alarm_rate"], "false_alarm_by_load": rates["false_alarm_by_load"],
+               "healthy_runs": rates["runs"], "trigger_rate": rates["trigger_rate"],
                "healthy_run_s": run_seconds(th, None), "fault_run_s": DURATION,
                "load_bins_kg": LOAD_BINS, "thresholds_source": th.source, "isolation": th.isolation, "rows": rows,
                "isolation_decisions_within_1s": n_dec, "wrong_isolation_decisions": n_wrong,
                "wrong_isolation_rate": n_wrong / n_dec if n_dec else float("nan"),
                "smallest_detected_and_isolated_95pct_within_1s": smallest,
                "smallest_detected_and_isolated_95pct_within_1s_by_load": smallest_by_load, "roc": roc}
+    if any(j[0] == "healthy_long" for j in jobs):
+        metrics["long_cycles"] = _healthy_rates(_load(chunk_dir, jobs, "healthy_long", tag))
     if has_bound:
         metrics["bound"] = {"threshold_nats": bnd[0], "level": th.false_alarm_level, "margin_nats": bnd[1],
                             "healthy_runs": int(len(hmax)),
@@ -500,6 +508,20 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
     (Path(out_dir) / "metrics.md").write_text("\n".join(_markdown(metrics, th, reference)) + "\n")
     _roc_figure(Path(out_dir) / "roc.png", roc)
     return metrics
+
+
+def _healthy_rates(d: dict) -> dict:
+    """The false-alarm figures of loaded healthy chunks ``d``: runs, false-alarm rate (runs with an
+    alarm that stood: the bank confirmed it, when the chunks have the bank's verdicts; else any
+    alarm), the same per load third (NaN: no run there) and the trigger rate (runs with any
+    CUSUM alarm, confirmed or withdrawn)."""
+    trigger_runs = d["max"][:, :, 2].max(axis=1) > 1.0
+    fa_runs = d["conf_k"] >= 0 if "conf_k" in d else trigger_runs
+    lb = _load_bin(d["m_L"])
+    return {"runs": int(len(fa_runs)), "false_alarm_rate": float(fa_runs.mean()),
+            "false_alarm_by_load": [float(fa_runs[lb == i].mean()) if (lb == i).any() else float("nan")
+                                    for i in range(len(LOAD_BINS))],
+            "trigger_rate": float(trigger_runs.mean())}
 
 
 def _fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
@@ -613,13 +635,14 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
              "thresholds were derived for.", "",
              *([f"Every machine was first calibrated on a healthy {REFERENCE_S:g} s reference recording of its own (another "
                  "load and input): `--reference`, as `fdi replay --reference` does.", ""] if reference else []),
-             f"Held-out healthy runs: {m['healthy_runs']} x {run_seconds(th, None):g} s; false-alarm rate (any alarm "
-             f"{'that the bank confirmed ' if likelihood and th.confirm_nats > 0 else ''}per run): "
-             f"{m['false_alarm_rate']:.3f}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"
-                                                                  for b, v in zip(bins, m["false_alarm_by_load"]))
-             + f"; runs with any CUSUM alarm (confirmed or withdrawn): {m['trigger_rate']:.3f}"
+             "Held-out healthy runs (the studies' sine, 2-4 s cycle and PRBS inputs): "
+             + _healthy_line({**m, "runs": m["healthy_runs"]}, th, bins, likelihood)
              + ("" if th.trigger_level is None else
                 f" (the h were set for {th.trigger_level:g} of the nuisance study's healthy runs)"), "",
+             *([f"Held-out healthy runs of the issue's 20-60 s extend/retract cycles (random period, amplitude "
+                f"{LONG_CYCLES['amplitude_V'][0]:g}-{LONG_CYCLES['amplitude_V'][1]:g} V, phase and start position: "
+                "some long strokes end on an end stop, some reverse in mid-stroke; not in the threshold studies): "
+                + _healthy_line(m["long_cycles"], th, bins, likelihood), ""] if "long_cycles" in m else []),
              f"Isolation decisions within 1 s of the onset (fault runs detected within 1 s): "
              f"{m['isolation_decisions_within_1s']}, of which wrong (named another fault hypothesis): "
              f"{m['wrong_isolation_decisions']}" + (f" = {wr:.3f}" if math.isfinite(wr) else ""), "",
@@ -650,6 +673,16 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
     lines += ["",
               "Thresholds (CUSUM h [sigma s], drift %.2g sigma): %s" % (th.drift, json.dumps(th.h))]
     return lines
+
+
+def _healthy_line(r: dict, th: Thresholds, bins: list, likelihood: bool) -> str:
+    """metrics.md's words for the false-alarm figures ``r`` of a healthy population
+    (:func:`_healthy_rates`: ``runs``, ``false_alarm_rate``, ``false_alarm_by_load``, ``trigger_rate``)."""
+    return (f"{r['runs']} x {run_seconds(th, None):g} s; false-alarm rate (any alarm "
+            f"{'that the bank confirmed ' if likelihood and th.confirm_nats > 0 else ''}per run): "
+            f"{r['false_alarm_rate']:.3f}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"
+                                                                 for b, v in zip(bins, r["false_alarm_by_load"]))
+            + f"; runs with any CUSUM alarm (confirmed or withdrawn): {r['trigger_rate']:.3f}")
 
 
 def _row_size(r: dict) -> str:

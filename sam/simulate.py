@@ -125,8 +125,9 @@ def _pack_time_varying(time_varying: dict[str, np.ndarray], n_steps: int):
     return cols, np.ascontiguousarray(vals)
 
 
-def initial_state(params: np.ndarray, x: float = 0.0) -> np.ndarray:
-    """A state at rest, valve centred, piston at ``x`` [m]: shape (n_runs, 7) or (7,).
+def initial_state(params: np.ndarray, x: float | np.ndarray = 0.0) -> np.ndarray:
+    """A state at rest, valve centred, piston at ``x`` [m] (a float, or (n_runs,) one per run):
+    shape (n_runs, 7) or (7,).
 
     The rod-side pressure is the one the laminar null leakage settles to,
     Eq. (14) with zero flow: the valve has been centred for a long time. On the
@@ -135,15 +136,15 @@ def initial_state(params: np.ndarray, x: float = 0.0) -> np.ndarray:
     instead holds the load: ``p_A A_A = p_B A_B + F_ext``.
     """
     p = np.atleast_2d(params)
+    x = np.broadcast_to(np.asarray(x, dtype=float), (p.shape[0],))
     p_A = _leak_divider(p, "PA", "AT")
     p_B = _leak_divider(p, "PB", "BT")
-    if x > 0.0:
-        A_A, A_B = areas(p[:, P.D_piston], p[:, P.D_rod])
-        F_ext = external_force(
-            x, p[:, P.L_1], p[:, P.L_2], p[:, P.L_3], p[:, P.alpha], p[:, P.m_B],
-            p[:, P.r_B], p[:, P.m_L], p[:, P.m_R], p[:, P.L],
-        ) + p[:, P.F_d]
-        p_A = (p_B * A_B + F_ext) / A_A
+    A_A, A_B = areas(p[:, P.D_piston], p[:, P.D_rod])
+    F_ext = external_force(
+        x, p[:, P.L_1], p[:, P.L_2], p[:, P.L_3], p[:, P.alpha], p[:, P.m_B],
+        p[:, P.r_B], p[:, P.m_L], p[:, P.m_R], p[:, P.L],
+    ) + p[:, P.F_d]
+    p_A = np.where(x > 0.0, (p_B * A_B + F_ext) / A_A, p_A)
     s = np.zeros((p.shape[0], N_STATES))
     s[:, S.p_A], s[:, S.p_B], s[:, S.x] = p_A, p_B, x
     return s if np.ndim(params) == 2 else s[0]

@@ -20,7 +20,7 @@ from samfdi.cli import build_parser, main
 N_RUNS = 10  # 10 healthy runs, max(5, 10 // 5) = 5 runs per fault case: one chunk each
 
 
-def _fake_chunk(plant, th, fault, size, n, seed, reference=False, bound=False):
+def _fake_chunk(plant, th, fault, size, n, seed, inputs="standard", reference=False, bound=False):
     """A chunk as _chunk_job returns it, made by hand (seeded): healthy runs never alarm; fault
     runs alarm on the right hypothesis 100 ms after their onset and the bank names it there,
     except that in K_int 0.5 L/min the bank names K_extA in run 0 (a wrong isolation)."""
@@ -45,11 +45,11 @@ def _fake_chunk(plant, th, fault, size, n, seed, reference=False, bound=False):
 
 @pytest.fixture
 def calls(monkeypatch):
-    """The (fault, size, n, seed) of every chunk the tune computes (with the fake Monte Carlo)."""
+    """The (fault, size, n, seed, inputs) of every chunk the tune computes (with the fake Monte Carlo)."""
     made = []
 
     def fake(*args):
-        made.append(args[2:6])
+        made.append(args[2:7])
         return _fake_chunk(*args)
 
     monkeypatch.setattr(tune, "_chunk_job", fake)
@@ -67,7 +67,7 @@ def test_resume_refuses_a_folder_made_with_other_settings(tmp_path, calls, capsy
     out = tmp_path / "t"
     assert _tune(out) == 0
     n_jobs = len(tune._jobs(N_RUNS))
-    assert len(calls) == n_jobs == 1 + 17
+    assert len(calls) == n_jobs == 1 + 1 + 17
     man = json.loads((out / "tune.json").read_text())
     assert man["runs"] == N_RUNS and man["layout"] == tune.CHUNK_VERSION
     before = json.loads((out / "metrics.json").read_text())["rows"]
@@ -234,13 +234,22 @@ def test_withdrawn_alarms_are_not_false_alarms(tmp_path):
     d = dict(np.load(path))
     d["conf_k"][0] = d["k_onset"][0] + 1500
     np.savez(path, **d)
+    path = tune._chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "healthy_long"), tag)
+    d = dict(np.load(path))
+    d["max"][:2, 1, 2] = 1.5  # the long cycles: two CUSUM alarms, both confirmed
+    d["conf_k"][:2] = 9000
+    np.savez(path, **d)
     m = tune.analyse(tmp_path, jobs, Thresholds.shipped(), tag)
-    n = m["healthy_runs"]
+    n, n_long = m["healthy_runs"], m["long_cycles"]["runs"]
+    assert (n, n_long) == (N_RUNS, tune.long_cycle_runs(N_RUNS))
     assert m["false_alarm_rate"] == pytest.approx(1 / n) and m["trigger_rate"] == pytest.approx(3 / n)
+    assert m["long_cycles"]["false_alarm_rate"] == m["long_cycles"]["trigger_rate"] == pytest.approx(2 / n_long)
     row = next(r for r in m["rows"] if (r["fault"], r["size"]) == ("K_extA", 1.0))
     assert row["detected_within_1s"] == pytest.approx(1 - 1 / row["runs"])
     md = (tmp_path / "metrics.md").read_text()
     assert f"that the bank confirmed per run): {1 / n:.3f}" in md and f"withdrawn): {3 / n:.3f}" in md
+    long_line = next(line for line in md.splitlines() if line.startswith("Held-out healthy runs of the issue's 20-60 s"))
+    assert f"{n_long} x 20 s" in long_line and f"per run): {2 / n_long:.3f}" in long_line
     assert "(the h were set for 0.1 of the nuisance study's healthy runs)" in md  # the shipped trigger level
 
 
@@ -291,11 +300,12 @@ def test_help_states_the_workers_and_runs_rules():
     sub = build_parser()._subparsers._group_actions[0].choices["fdi"]._subparsers._group_actions[0].choices["tune"]
     helps = {a.dest: a.help for a in sub._actions}
     assert "process pool" in helps["workers"] and "(dask)" not in helps["workers"]
-    assert "max(5, N // 5) per fault type and size" in helps["runs"]
+    assert "max(5, N // 5) per fault type and size" in helps["runs"] and "max(5, N // 2) more" in helps["runs"]
     assert "force" in helps
     for n in (5, 10, 24, 25, 26, 230):
         per_case = sum(j[3] for j in tune._jobs(n) if j[0] == "K_int_0.25")
         assert per_case == max(5, n // 5) and sum(j[3] for j in tune._jobs(n) if j[0] == "healthy") == n
+        assert sum(j[3] for j in tune._jobs(n) if j[0] == "healthy_long") == max(5, n // 2)
 
 
 def test_smallest_size_needs_every_larger_size_and_runs():
