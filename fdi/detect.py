@@ -796,8 +796,11 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
     untested = [p for p, s in zip(PARAMS, tested) if s < MIN_TESTED_S]
     if untested and status == "healthy":
         untested_note = (f"healthy as far as tested: {', '.join(untested)} tested for less than {MIN_TESTED_S:g} s "
-                         "(the pressures pinned at supply and tank, the recording too short after the baseline, "
-                         "or never in a regime where the thresholds let that residual vote)")
+                         + ("(the pressures pinned at supply and tank, the recording too short after the baseline, "
+                            "which is learnt from the first motion, or never in a regime where the thresholds let "
+                            "that residual vote)" if health["first_motion_s"] is not None else
+                            f"(the valve input never left its +-{th.band_V:g} V hold band, and the baseline is "
+                            "learnt from the first motion)"))
         note = f"{untested_note}; {note}" if note else untested_note
     return Diagnosis(
         status=status, isolated=isolated,

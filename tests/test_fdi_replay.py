@@ -235,6 +235,11 @@ def test_untested_parameters_are_named_and_position_can_be_dropped(tmp_path, cap
     d = fdi.replay_recording(first, load_plant(), tmp_path / "s", figure=False)
     assert d.status == "healthy" and "healthy as far as tested: K_extB, offset" in d.note
     assert d.filter_health["tested_s"]["K_extB"] == 0.0 and d.filter_health["tested_s"]["K_int"] > 4.0
+    # a machine that never moves: no baseline (it is learnt from the first motion), nothing tested
+    rest = Recording(first.t, {**first.signals, "u": np.zeros_like(first.t)})
+    d = fdi.replay_recording(rest, load_plant(), tmp_path / "r", figure=False)
+    assert d.status == "healthy" and d.filter_health["first_motion_s"] is None
+    assert "K_int, K_extA, K_extB, offset tested for less than" in d.note and "never left its" in d.note
     glitch = _recording(None, T=3001)
     glitch.signals["theta"][1500] = -0.2
     write_recording(tmp_path / "glitch.csv", glitch)
