@@ -447,7 +447,7 @@ def before_motion(out: FilterOutput, th: "Thresholds") -> np.ndarray:
     measured, m_L +41 % with F_d -20 kN in a 2 s rest at 394 kg), the piston creeps and the
     friction builds, and the first motion then moves the fault estimates far from a baseline
     learnt at rest (session 18: 14 of 200 healthy 20 s runs of 20-60 s cycles that began with
-    a rest of 1.6-12 s false-alarmed within 0.2 s of their first motion)."""
+    a rest of 1.6-12 s false-alarmed 0.04-0.9 s after their first motion)."""
     if out.u is None:
         return np.zeros(out.mean.shape[:2], dtype=bool)
     dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
