@@ -181,13 +181,44 @@ def _read_csv(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], list[i
     header_at = _find_header(lines, path)
     metadata = _parse_metadata([ln for ln in lines[:header_at] if ln.strip()])
     names = _parse_header(lines[header_at], path, header_at + 1)
-    rows = _split_rows(lines[header_at + 1 :], names, path, first_line=header_at + 2)
-    line_of = list(range(header_at + 2, header_at + 2 + len(rows)))
+    data_lines = lines[header_at + 1 :]
+    line_of = list(range(header_at + 2, header_at + 2 + len(data_lines)))
+    known = _keep_known(names, path)
+    table = _fast_table(data_lines, len(names))
+    if table is not None:
+        return {name: table[:, names.index(name)].copy() for name in known}, metadata, line_of, names
+    rows = _split_rows(data_lines, names, path, first_line=header_at + 2)
     columns = {}
-    for name in _keep_known(names, path):
+    for name in known:
         j = names.index(name)
         columns[name] = _parse_column(name, [r[j] for r in rows], str(path), line_of)
     return columns, metadata, line_of, names
+
+
+_EMPTY_FIELD = re.compile(r"(?:^|,)\s*(?:,|$)")
+
+
+def _fast_table(data_lines: list[str], n_cols: int) -> np.ndarray | None:
+    """(rows, n_cols) float64 from the data lines of a plain numeric CSV, parsed in C, or None
+    when the file needs the careful reader (quotes, empty fields, text, a row of the wrong
+    width): that reader then finds and names the problem. Why: the careful reader parses each
+    field in Python, 5-10 s for a 3-minute 1 kHz recording; this takes a fifth of that."""
+    if not data_lines or any(line.count(",") != n_cols - 1 for line in data_lines):
+        return None
+    text = ",".join(data_lines)
+    # numpy reads an empty field as -1, not NaN: those files take the careful reader
+    if '"' in text or _EMPTY_FIELD.search(text):
+        return None
+    with warnings.catch_warnings():
+        # numpy warns, and stops, at the first field it cannot read: the careful reader's case
+        warnings.simplefilter("error", DeprecationWarning)
+        try:
+            values = np.fromstring(text, sep=",")
+        except (ValueError, DeprecationWarning):
+            return None
+    if values.size != len(data_lines) * n_cols:
+        return None
+    return values.reshape(len(data_lines), n_cols)
 
 
 def _read_text(path: Path) -> str:
