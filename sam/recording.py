@@ -195,30 +195,18 @@ def _read_csv(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], list[i
     return columns, metadata, line_of, names
 
 
-_EMPTY_FIELD = re.compile(r"(?:^|,)\s*(?:,|$)")
-
-
 def _fast_table(data_lines: list[str], n_cols: int) -> np.ndarray | None:
-    """(rows, n_cols) float64 from the data lines of a plain numeric CSV, parsed in C, or None
-    when the file needs the careful reader (quotes, empty fields, text, a row of the wrong
-    width): that reader then finds and names the problem. Why: the careful reader parses each
-    field in Python, 5-10 s for a 3-minute 1 kHz recording; this takes a fifth of that."""
-    if not data_lines or any(line.count(",") != n_cols - 1 for line in data_lines):
+    """(rows, n_cols) float64 from the data lines of a plain numeric CSV, parsed by numpy's C
+    reader (np.loadtxt), or None when the file needs the careful reader (empty fields, text,
+    quotes, a row of the wrong width): that reader then reads it or names the problem. Why: the
+    careful reader parses each field in Python, 7 s for a 3-minute 1 kHz recording, np.loadtxt 1 s."""
+    if not data_lines:
         return None
-    text = ",".join(data_lines)
-    # numpy reads an empty field as -1, not NaN: those files take the careful reader
-    if '"' in text or _EMPTY_FIELD.search(text):
+    try:
+        table = np.loadtxt(data_lines, delimiter=",", comments=None, ndmin=2, dtype=np.float64)
+    except ValueError:
         return None
-    with warnings.catch_warnings():
-        # numpy warns, and stops, at the first field it cannot read: the careful reader's case
-        warnings.simplefilter("error", DeprecationWarning)
-        try:
-            values = np.fromstring(text, sep=",")
-        except (ValueError, DeprecationWarning):
-            return None
-    if values.size != len(data_lines) * n_cols:
-        return None
-    return values.reshape(len(data_lines), n_cols)
+    return table if table.shape == (len(data_lines), n_cols) else None
 
 
 def _read_text(path: Path) -> str:

@@ -115,7 +115,7 @@ FIELD_TEXTS = (repr, "{:.6e}".format, " {!r} ".format, "{:g}".format, lambda v: 
 @given(st.lists(st.tuples(st.floats(allow_nan=False, allow_infinity=False), st.integers(0, len(FIELD_TEXTS) - 1)),
                 min_size=3, max_size=60))
 def test_the_fast_csv_reader_reads_what_the_careful_one_does(fields):
-    """The C parser of plain numeric files (sam.recording._fast_table) gives the same float64
+    """numpy's C reader of plain numeric files (sam.recording._fast_table) gives the same float64
     bits as the field-by-field reader, for every way a logger writes a number or a NaN."""
     from sam.recording import _fast_table, _number
 
@@ -131,8 +131,8 @@ def test_the_fast_csv_reader_reads_what_the_careful_one_does(fields):
 
 @pytest.mark.parametrize("row", ["0.1, ,2", "0.1,2,", "0.1,x,2", '0.1,"2",3', "0.1,2", "0.1,2,3,4", "0.1,1_0,2"])
 def test_a_csv_the_fast_reader_cannot_read_exactly_goes_to_the_careful_one(row):
-    """An empty field (numpy would read it as -1), text, quotes or a row of the wrong width: the
-    fast reader declines, and the careful reader reads it or names the problem."""
+    """An empty field (a NaN gap), text, quotes or a row of the wrong width: the fast reader
+    declines, and the careful reader reads it or names the problem."""
     from sam.recording import _fast_table
 
     assert _fast_table(["0.0,1,2", row], 3) is None
