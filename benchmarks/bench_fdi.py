@@ -2,6 +2,10 @@
 points) against a plain filterpy loop calling the model once per sigma point.
 
     PYTHONPATH=. python benchmarks/bench_fdi.py
+
+It ends with a 3-minute recording: its CSV read and the replay's CSV output, against what a
+user would otherwise write (np.genfromtxt, np.savetxt) and our own earlier field-by-field code,
+then the whole `samfdi fdi replay` path (read, filter, diagnosis, files, figure).
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from sam import load_plant  # noqa: E402
 from fdi.montecarlo import make_batch  # noqa: E402
 from fdi.synth import input_signal, lpm, profile, simulate_runs  # noqa: E402
-from fdi.ukf import FilterConfig, initial_mean, noise_vectors, run_filter, state_scale  # noqa: E402
+from fdi.ukf import POS_THETA, FilterConfig, initial_mean, noise_vectors, run_filter, state_scale  # noqa: E402
 
 
 def main() -> None:
@@ -57,6 +61,7 @@ def main() -> None:
     print(f"legacy filter (sessions 1-5, 12 states): 4 s in {bl:.3f} s -> {4.0 / bl:.0f}x real time; "
           f"100 recordings {tl:.2f} s = {tl / 100 * 1e3:.0f} ms per run")
     _bench_isolation(plant, runs)
+    _bench_long_recording(plant)
 
 
 def _bench_isolation(plant, runs) -> None:
@@ -102,6 +107,67 @@ def _bench_isolation(plant, runs) -> None:
           f"{th_ / 50 * 1e3:.0f} ms, healthy 4 s {t4_ / 50 * 1e3:.0f} ms, faulty 4 s {tf_ / 50 * 1e3:.0f} ms -> "
           f"1000 runs of the tune's mix ~ {per_1000:.0f} s on one core, ~ {per_1000 / 2:.0f} s on 2 cores; "
           f"1000 runs of 4 s ~ {per_1000_4s / 2:.0f} s on 2 cores")
+
+
+def _bench_long_recording(plant, duration_s: float = 180.0) -> None:
+    """A 3-minute 1 kHz recording: where a long replay's time goes besides the filter."""
+    import csv
+    import math
+    import tempfile
+
+    from sam import Recording, read_recording, write_recording
+    from sam import recording as recording_module
+    from fdi import replay as replay_module
+    from fdi.replay import replay_recording
+
+    t = np.arange(int(round(duration_s * 1e3)) + 1) * 1e-3
+    u = input_signal("sine", t, amplitude=3.0, frequency=1.0 / 40.0)
+    runs = simulate_runs(plant.vector()[None], u, 1e-3)
+    pos = "theta" if runs.inp.pos_kind == POS_THETA else "x"
+    sig = {"u": runs.inp.u[0], "pA": runs.inp.pA[0], "pB": runs.inp.pB[0], pos: runs.inp.pos[0]}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = write_recording(Path(tmp) / "long.csv", Recording(t, sig, source="bench"))
+        ours = _median(lambda: read_recording(path))
+        fast_table = recording_module._fast_table
+        recording_module._fast_table = lambda lines, n: None  # the field-by-field reader alone
+        careful = _median(lambda: read_recording(path), 1)
+        recording_module._fast_table = fast_table
+        gen = _median(lambda: np.genfromtxt(path, delimiter=",", names=True), 1)
+        print(f"read a {duration_s:g} s CSV recording ({len(t)} rows): ours {ours:.2f} s, np.genfromtxt {gen:.2f} s "
+              f"({gen / ours:.1f}x), field by field (until session 19) {careful:.2f} s ({careful / ours:.1f}x)")
+        table = {f"c{j}": np.random.default_rng(j).normal(size=len(t)) for j in range(57)}  # a replay's 57 columns
+        out = Path(tmp) / "out.csv"
+        ours = _median(lambda: replay_module._write_csv(out, table), 1)
+        data = np.column_stack(list(table.values()))
+        tuned = _median(lambda: _write_per_row(out, table), 1)
+
+        def by_csv_writer():  # the replay's writer until session 19
+            with out.open("w", newline="") as f:
+                w = csv.writer(f)
+                w.writerow(list(table))
+                for row in data:
+                    w.writerow([repr(float(x)) if math.isfinite(x) else "nan" for x in row])
+
+        old = _median(by_csv_writer, 1)
+        print(f"write a replay's CSV output ({data.size / 1e6:.1f} M values): ours (np.savetxt '%.17g') {ours:.1f} s, "
+              f"repr joined per row {tuned:.1f} s ({tuned / ours:.1f}x), csv.writer of repr (until session 19) "
+              f"{old:.1f} s ({old / ours:.1f}x)")
+        rec = read_recording(path)
+        whole = _timed(lambda: replay_recording(rec, plant, Path(tmp) / "replay"))
+        print(f"samfdi fdi replay of the {duration_s:g} s recording (filter, diagnosis, files, figure; read not "
+              f"included): {whole:.1f} s -> {duration_s / whole:.1f}x real time")
+
+
+def _write_per_row(path: Path, cols: dict) -> None:
+    """The hand-written alternative to np.savetxt that was measured: repr joined per row."""
+    data = np.column_stack(list(cols.values())).tolist()
+    with path.open("w") as f:
+        f.write(",".join(cols) + "\n")
+        f.write("\n".join(",".join(map(repr, row)) for row in data) + "\n")
+
+
+def _median(f, repeats: int = 3) -> float:
+    return float(np.median([_timed(f) for _ in range(repeats)]))
 
 
 def _timed(f) -> float:

@@ -366,21 +366,13 @@ def _write_residuals(path: Path, t, res, stats, th: Thresholds) -> None:
     _write_csv(path, cols)
 
 
-#: rows formatted per write: bounds the text held in memory (a few MB)
-CSV_CHUNK_ROWS = 10_000
-
-
 def _write_csv(path: Path, cols: dict) -> None:
-    """Columns (name -> (T,) array) as CSV, each value as repr (the shortest text that reads back
-    to the same float64; 'nan' where undefined). Formatting is the cost of a long replay's output
-    (37 + 20 columns: about 1 us per value), so rows are formatted by one map per row."""
+    """Columns (name -> (T,) array) as CSV, each value as '%.17g' (reads back to the same
+    float64; 'nan' where undefined). np.savetxt formats a row per call: about 1 us per value,
+    the main cost of a long replay's output besides the filter (docs/benchmarks.md)."""
     names = list(cols)
     data = np.column_stack([np.asarray(cols[n], dtype=float) for n in names])
-    with path.open("w", newline="") as f:
-        f.write(",".join(names) + "\n")
-        for start in range(0, len(data), CSV_CHUNK_ROWS):
-            rows = data[start:start + CSV_CHUNK_ROWS].tolist()
-            f.write("\n".join(",".join(map(repr, row)) for row in rows) + "\n")
+    np.savetxt(path, data, fmt="%.17g", delimiter=",", header=",".join(names), comments="")
 
 
 def _alarm_lines(diag) -> list:

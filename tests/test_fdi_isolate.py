@@ -51,6 +51,21 @@ def bank_runs():
     return out, ref, rows, k0, k1, iso.run_bank(out, ref, rows, k0, k1)
 
 
+
+def test_the_reference_run_over_the_whole_record_is_the_same_up_to_each_episode(bank_runs):
+    """Later episodes of a replay read the reference at their own start from ONE run over the
+    whole record (fdi.isolate.reference_rows): the reference must be causal, i.e. the run to
+    k0 + 1 and the run to the end agree on [0, k0], to round-off, in every state and std."""
+    out, ref, rows, k0, k1, bank = bank_runs
+    T = out.mean.shape[1]
+    whole = iso.run_reference(out, rows, np.full(len(rows), T))
+    k = int(k0[0]) + 1
+    np.testing.assert_allclose(whole.mean[:, :k], ref.mean[:, :k], rtol=1e-12, atol=0)
+    np.testing.assert_allclose(whole.std[:, :k], ref.std[:, :k], rtol=1e-12, atol=0)
+    picked = iso.reference_rows(rows, whole, np.array([3, 1]))
+    np.testing.assert_array_equal(picked.mean, whole.mean[[3, 1]])
+    np.testing.assert_array_equal(picked.ll, whole.ll[[3, 1]])
+
 def test_bank_isolates_and_sizes_each_single_fault(bank_runs):
     """Decided from the alarm assumed 0.5 s after the onset: the right hypothesis with the
     stated margin, and the size within 0.1 L/min (leaks) or 0.2 % (offset) of the truth."""
