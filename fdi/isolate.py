@@ -948,11 +948,15 @@ def _episode(out: FilterOutput, stats: dict, h: dict, k_ready, margin: float, ho
                     decs[i].size = float(one.free[q, 0, nv - 1] - one.healthy[q, 0])
                     decs[i].size_sd = float(one.free_sd[q, 0, nv - 1])
     sel = np.array([i for i, d in enumerate(decs) if d.confirmed], dtype=np.int64)
+    kp = np.full(len(sel), T, dtype=np.int64)
+    if pair_horizon_s is not None:
+        kp = np.minimum(T, ka[sel] + int(round(pair_horizon_s / dt)) + 1)
+    kp = np.minimum(kp, k_stop[sel])
+    # the pairs restart where the naming bank's window ended: a run with no sample left after
+    # it (an alarm in the record's last second) keeps its single decision
+    left = bank.k0[sel] + bank.n_valid[sel] < kp if len(sel) else np.zeros(0, dtype=bool)
+    sel, kp = sel[left], kp[left]
     if pairs and len(sel):  # stage 4: every single and pair, restarted after the alarm, one call
-        kp = np.full(len(sel), T, dtype=np.int64)
-        if pair_horizon_s is not None:
-            kp = np.minimum(T, ka[sel] + int(round(pair_horizon_s / dt)) + 1)
-        kp = np.minimum(kp, k_stop[sel])
         pb = run_pairs(out, ref, bank.subset(sel), rows[sel], kp, [best_single(decs[i]) for i in sel])
         for q, i in enumerate(sel):
             decide_pair(pb, q, margin_for(margin_level(margin), len(MULTI)), decs[i], confirm)

@@ -55,6 +55,18 @@ def test_known_leak_detected_isolated_and_sized(leak_csv, tmp_path, capsys):
     assert main(["fdi", "replay", str(leak_csv), "--out", str(out), "--force"]) == 0
 
 
+
+def test_a_leak_found_in_the_last_second_of_a_recording(tmp_path, capsys):
+    """An alarm less than the bank's window before the record ends leaves no sample for the
+    several-faults stage: the single decision stands (this raised a ValueError until session 19)."""
+    path = tmp_path / "late.csv"
+    write_recording(path, _recording({"K_extA": lambda t: profile("step", lpm(1.0), t, t0=3.7)}, T=4001))
+    out = tmp_path / "out"
+    assert main(["fdi", "replay", str(path), "--out", str(out)]) == 0
+    d = json.loads((out / "diagnosis.json").read_text())
+    assert d["status"] == "fault" and d["isolated"] == ["K_extA"]
+    assert 3.7 < d["detection_time_s"] <= 4.0
+
 def test_sampling_rate_must_match_the_thresholds(leak_csv, tmp_path, capsys):
     """sigma and h depend on the sampling rate (the 1 kHz thresholds give 12 % false alarms at
     500 Hz), so a 500 Hz recording is refused with the shipped 1 kHz thresholds and the command
