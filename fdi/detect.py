@@ -901,8 +901,6 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
 def _alarm_record(out: FilterOutput, th: Thresholds, d) -> dict:
     """The likelihood entries of the alarm a decision answers: its time, the confirmation
     (evidence needed, instant) and the run's withdrawn alarms [s]."""
-    from . import isolate
-
     t = out.t
     rec = {"alarm_s": float(t[d.alarm]) if d.alarm >= 0 else None,
            "confirm_nats": th.confirm_nats if th.confirm_nats > 0 else None,
@@ -910,7 +908,7 @@ def _alarm_record(out: FilterOutput, th: Thresholds, d) -> dict:
            "withdrawn_alarms_s": [float(t[k]) for k in d.withdrawn],
            "tests_restarted_s": [float(t[k]) for k in d.restarts if k < len(t)]}  # not at the record's end
     if d.episodes_capped:
-        rec["episodes_capped"] = isolate.MAX_EPISODES
+        rec["episodes_capped"] = len(d.withdrawn)
     return rec
 
 

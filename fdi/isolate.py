@@ -161,8 +161,11 @@ DECISION_WINDOW_S = 1.0
 #: Stated false-isolation level: the probability, under the model, that the isolated
 #: hypothesis is not the one that produced the data.
 FALSE_ISOLATION_LEVEL = 0.01
-#: Withdrawn alarms after which a run's tests are no longer restarted (each episode costs a
-#: bank over DECISION_WINDOW_S; the run's decision then says the cap was reached).
+#: Withdrawn alarms after which a run's tests are no longer restarted, at the least (each
+#: episode costs a bank over DECISION_WINDOW_S; the run's decision then says the cap was
+#: reached). A longer record gets one per DECISION_WINDOW_S of its length, the most it can
+#: hold (:func:`max_episodes`): until session 19 the cap was 30 for any length, and a 3-minute
+#: healthy 40 s sine with K_extA excursions in its steady strokes stopped being tested at 125 s.
 MAX_EPISODES = 30
 
 
@@ -630,7 +633,7 @@ class Decision:
     withdrawn: list = field(default_factory=list)
     #: recording samples at which the tests restarted after each withdrawn alarm (its window's end)
     restarts: list = field(default_factory=list)
-    episodes_capped: bool = False  #: MAX_EPISODES withdrawn alarms: the tests were not restarted again
+    episodes_capped: bool = False  #: max_episodes() withdrawn alarms: the tests were not restarted again
 
 
 def decide(bank: BankResult, i: int, k_alarm: int, margin: float, confirm: float = -math.inf,
@@ -822,7 +825,7 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     ahead of the healthy hypothesis by this much is withdrawn. With ``restart``, a function of
     (B,) restart samples returning the statistics restarted there
     (:func:`fdi.detect.restarted_statistics`), the tests of a run whose alarm was withdrawn restart at the end of that
-    window and the next alarm is examined in turn (at most MAX_EPISODES); the run's Decision
+    window and the next alarm is examined in turn (at most :func:`max_episodes`); the run's Decision
     is the first confirmed one (``withdrawn``: the earlier alarms) or, if none stands, the
     last withdrawn one (``confirmed`` False). ``hidden`` (B, F, T) bool, FAULTS order: where
     each fault parameter cannot show (:func:`fdi.detect.held_on_stop`; see :func:`decide`)."""
@@ -840,7 +843,7 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     # its later episodes: a replay's cost no longer grows with the square of its length
     # (measured, a 3-minute healthy sine with 29 withdrawn alarms: 44 s of references -> 4 s)
     reference = None
-    for _ in range(MAX_EPISODES - 1):
+    for _ in range(max_episodes(T, float(out.t[1] - out.t[0]) if T > 1 else 1e-3) - 1):
         start = np.zeros(B, dtype=np.int64)
         for b in todo:  # the tests restart where the withdrawn alarm's window ended
             start[b] = decs[b].window_end
@@ -855,6 +858,13 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     for b in todo:
         decs[b].episodes_capped = True
     return decs
+
+
+def max_episodes(n_samples: int, dt: float) -> int:
+    """The most alarms judged in a record of ``n_samples`` samples of ``dt`` [s]: MAX_EPISODES,
+    or one per DECISION_WINDOW_S of the record if that is more (each episode's window takes at
+    least that much of it, so a replay's cost grows with its length, not faster)."""
+    return max(MAX_EPISODES, int(n_samples * dt / DECISION_WINDOW_S) + 1)
 
 
 def confirmation_bank(out: FilterOutput, ref: FilterOutput, bank: BankResult, rows, k0, k1, k_alarm, kept: tuple,

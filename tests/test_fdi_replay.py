@@ -67,6 +67,29 @@ def test_a_leak_found_in_the_last_second_of_a_recording(tmp_path, capsys):
     assert d["status"] == "fault" and d["isolated"] == ["K_extA"]
     assert 3.7 < d["detection_time_s"] <= 4.0
 
+
+def test_a_long_recording_is_tested_to_its_end_whatever_its_withdrawn_alarms(monkeypatch):
+    """Each withdrawn alarm costs one bank, so the alarms judged per record are capped, but at
+    one per decision window of the record, not at a fixed number: a 60 s, 40 s-period sine
+    whose steady strokes trigger withdrawn alarms, with a 0.5 L/min K_extA leak from 55 s, and
+    the fixed floor lowered to 1 (as if a long record had used up the old cap of 30) still
+    finds the leak; with the old fixed cap it was called healthy."""
+    from fdi import isolate
+    from fdi.replay import replay
+
+    p = load_plant().vector()
+    t = np.arange(60001) * DT
+    u = input_signal("sine", t, amplitude=3.0, frequency=1 / 40)
+    r = simulate_runs(p[None], u, DT, faults={"K_extA": profile("step", lpm(0.5), t, t0=55.0)[None]})
+    rec = Recording(t, {"u": u, "pA": r.inp.pA[0], "pB": r.inp.pB[0], "theta": r.inp.pos[0]})
+    monkeypatch.setattr(isolate, "MAX_EPISODES", 1)
+    assert isolate.max_episodes(len(t), DT) == 61
+    d = replay(rec, load_plant())[3]
+    assert len([a for a in d.likelihood["withdrawn_alarms_s"] if a < 55.0]) >= 2  # the premise
+    assert d.status == "fault" and d.isolated == ["K_extA"] and 55.0 < d.detection_time_s < 56.0
+    monkeypatch.setattr(isolate, "max_episodes", lambda n, dt: 1)  # the fixed cap, as before
+    assert replay(rec, load_plant())[3].status == "healthy"
+
 def test_sampling_rate_must_match_the_thresholds(leak_csv, tmp_path, capsys):
     """sigma and h depend on the sampling rate (the 1 kHz thresholds give 12 % false alarms at
     500 Hz), so a 500 Hz recording is refused with the shipped 1 kHz thresholds and the command
