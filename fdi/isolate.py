@@ -841,7 +841,7 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
         return decs
     # the reference is causal, so one run over each restarting run's whole record serves all of
     # its later episodes: a replay's cost no longer grows with the square of its length
-    # (measured, a 3-minute healthy sine with 29 withdrawn alarms: 44 s of references -> 4 s)
+    # (measured, a 3-minute healthy sine with 30 withdrawn alarms: its replay 87 -> 49 s)
     reference = None
     for _ in range(max_episodes(T, float(out.t[1] - out.t[0]) if T > 1 else 1e-3) - 1):
         start = np.zeros(B, dtype=np.int64)
