@@ -40,7 +40,7 @@ from sam import P, S, stroke_ends
 from sam.errors import did_you_mean
 
 from .strokes import directions, first_motion, long_strokes
-from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, I_X, FilterOutput, leak_lpm
+from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, I_X, FilterOutput, leak_lpm, sample_step
 
 #: Fault hypotheses and the state each one reads (sign: +1 above healthy, -1 below).
 HYPOTHESES = {
@@ -406,7 +406,7 @@ def long_stroke_mask(out: FilterOutput, th: "Thresholds") -> np.ndarray:
     all False without it or without the input)."""
     if th.long_stroke_s is None or out.u is None or len(out.t) < 2:
         return np.zeros(out.mean.shape[:2], dtype=bool)
-    return long_strokes(out.u, out.t[1] - out.t[0], th.band_V, th.long_stroke_s)
+    return long_strokes(out.u, sample_step(out.t), th.band_V, th.long_stroke_s)
 
 
 def baseline_window(t: np.ndarray, hidden: np.ndarray, th: "Thresholds") -> tuple[np.ndarray, np.ndarray]:
@@ -450,7 +450,7 @@ def before_motion(out: FilterOutput, th: "Thresholds") -> np.ndarray:
     a rest of 1.6-12 s false-alarmed 0.04-0.9 s after their first motion)."""
     if out.u is None:
         return np.zeros(out.mean.shape[:2], dtype=bool)
-    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    dt = sample_step(out.t)
     k_move = first_motion(out.u, th.band_V)
     return np.arange(out.u.shape[1])[None, :] < (k_move + int(round(th.warmup_s / dt)))[:, None]
 
@@ -502,7 +502,7 @@ def change_spread(sd_filter: np.ndarray, sigma: np.ndarray, w: float) -> np.ndar
 
 def _test_masks(out: FilterOutput, th: "Thresholds", baseline=None, u: np.ndarray | None = None):
     """(regime (B, T), held (B, 4, T), baseline (B, 4), armed (B, 4, T)) of the change tests."""
-    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    dt = sample_step(out.t)
     u = out.u if u is None else u
     reg = regimes(u, dt, th.band_V, th.transient_s) if u is not None else np.full(out.mean.shape[:2], 2, np.int8)
     hidden = held(out, th)
@@ -518,7 +518,7 @@ def tested_seconds(out: FilterOutput, th: "Thresholds", baseline=None) -> np.nda
     """(B, 4) seconds in which each parameter's change test ran: armed (after its baseline),
     voting in the regime, not held by pinned pressures. A parameter tested for less than
     MIN_TESTED_S was not looked at, whatever the statistic says."""
-    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    dt = sample_step(out.t)
     reg, hidden, _, ready = _test_masks(out, th, baseline)
     votes = np.stack([np.asarray(th.votes[p], dtype=bool)[reg] for p in PARAMS], axis=1)
     warm = out.t >= th.warmup_s
@@ -583,7 +583,7 @@ def statistics(out: FilterOutput, th: Thresholds, baseline=None,
     the drift of each test from :func:`cusum_drift` (larger for K_int and the offset in long
     strokes). ``start``: (B,) samples at which each run's tests restart from 0 (after a
     withdrawn alarm, :func:`fdi.isolate.isolate`); never before the warm-up."""
-    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    dt = sample_step(out.t)
     warm = int(round(th.warmup_s / dt))
     if start is not None:
         warm = np.maximum(warm, np.asarray(start, dtype=np.int64))
@@ -620,7 +620,7 @@ def restarted_statistics(out: FilterOutput, th: Thresholds, baseline=None):
     now; kept, the test alarms on it again and again and one of those looks may pass the
     confirmation (measured, 20-60 s cycles from the encoder: false alarms 2 -> 0 and 4 -> 2 of
     100, no fault beginning inside such a cycle found later; docs/fdi.md, "Confirmed alarms")."""
-    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    dt = sample_step(out.t)
     n = max(1, int(round(REBASE_S / dt)))
     B = out.mean.shape[0]
     base0 = baseline_values(out, th) if baseline is None else np.broadcast_to(np.atleast_2d(baseline), (B, 4))
@@ -675,7 +675,7 @@ def first_alarm(g: np.ndarray, h: float) -> np.ndarray:
 
 
 def nis_alarm(out: FilterOutput, th: Thresholds) -> np.ndarray:
-    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    dt = sample_step(out.t)
     hold = max(1, int(round(th.nis_hold_s / dt)))
     warm = int(round(th.warmup_s / dt))
     hi = out.nis > th.nis_limit
@@ -847,7 +847,7 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
     is confirmed (``th.confirm_nats``). ``baseline``: as given to :func:`statistics`."""
     from . import isolate
 
-    dt = out.t[1] - out.t[0] if len(out.t) > 1 else 1e-3
+    dt = sample_step(out.t)
     margin = isolate.margin_for(th.false_isolation_level)
     if decision is None:
         # the change test is armed after the baseline window (own baseline) or the warm-up

@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from .isolate import BANK, FAULT_IDX, FAULTS, _run_hypotheses, bank_config, seed_from
-from .ukf import N_AUG, FilterOutput, state_scale
+from .ukf import N_AUG, FilterOutput, sample_step, state_scale
 
 #: s: window length = restart period. 0.5 s: two windows fit in the 1 s detection target, so a
 #: step is followed by at least one whole faulty window within 1 s; the cost is the bank once
@@ -59,7 +59,7 @@ def glr_statistics(out: FilterOutput, baseline: np.ndarray | None, k_ready: int,
     held in every window (None: the detection filter's estimates at the window's start). One
     batched bank call for all windows of all runs."""
     B, T = out.mean.shape[:2]
-    dt = float(out.t[1] - out.t[0])
+    dt = sample_step(out.t)
     starts = window_starts(T, k_ready, dt, restart_s)
     g = {h: np.zeros((B, T)) for h in FAULTS}
     if not len(starts):

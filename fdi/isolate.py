@@ -71,7 +71,7 @@ import numpy as np
 
 from .ukf import (
     I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, K_PER_LPM, N_AUG, N_MODEL, PRESETS, SCALE, FilterConfig,
-    FilterOutput, param_layout, run_filter, state_scale,
+    FilterOutput, param_layout, run_filter, sample_step, state_scale,
 )
 
 #: The filter whose calibration states learn the nuisance before the onset (docs/fdi-history.md,
@@ -377,7 +377,7 @@ def run_bank_starts(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: 
     posterior at tau, so it counts from tau + 1). Two run_filter calls. Returned on the grid
     [k0[i], k1[i]) like run_bank's; each hypothesis' estimates, state and ``start`` come from
     its most likely start at the window's last sample."""
-    dt = float(out.t[1] - out.t[0])
+    dt = sample_step(out.t)
     rows, k0, k1, k_alarm = (np.asarray(a, dtype=np.int64) for a in (rows, k0, k1, k_alarm))
     names = tuple(hypotheses)
     first = run_bank(out, ref, rows, k0, k1, names, ref_rows=ref_rows, keep_healthy=True, kept=kept)
@@ -843,7 +843,7 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     # its later episodes: a replay's cost no longer grows with the square of its length
     # (measured, a 3-minute healthy sine with 30 withdrawn alarms: its replay 87 -> 49 s)
     reference = None
-    for _ in range(max_episodes(T, float(out.t[1] - out.t[0]) if T > 1 else 1e-3) - 1):
+    for _ in range(max_episodes(T, sample_step(out.t)) - 1):
         start = np.zeros(B, dtype=np.int64)
         for b in todo:  # the tests restart where the withdrawn alarm's window ended
             start[b] = decs[b].window_end
@@ -910,7 +910,7 @@ def _episode(out: FilterOutput, stats: dict, h: dict, k_ready, margin: float, ho
     (array), each judged up to ``k_stop`` (one sample per row). ``k_ready``: a sample, or one
     per run (B,), before which no onset is estimated. ``reference``: (runs, their reference
     filter output) already run far enough for these alarms, or None to run it here."""
-    dt = float(out.t[1] - out.t[0])
+    dt = sample_step(out.t)
     T = out.mean.shape[1]
     k_alarm, who = first_alarms(stats, h)
     keep = k_alarm[rows] >= 0

@@ -877,10 +877,14 @@ class FilterOutput:
     @property
     def names(self) -> tuple[str, ...]:
         return state_names(self.config)
-
     def estimate(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         j = self.names.index(name)
         return self.mean[:, :, j], self.std[:, :, j]
+
+
+def sample_step(t: np.ndarray) -> float:
+    """s, the sampling step of the sample times ``t`` (T,) of a filter output (1 ms for one sample)."""
+    return float(t[1] - t[0]) if len(t) > 1 else 1e-3
 
 
 def measurement_variances(cfg: FilterConfig, pos_kind: int) -> np.ndarray:
