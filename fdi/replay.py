@@ -58,7 +58,8 @@ def detect_position_sensor(rec: Recording, plant: Plant) -> str:
     """The position sensor of a recording (fdi.detect.SHIPPED_BY_SENSOR): "encoder" when the filter
     reads theta or an x computed from the encoder's theta (on its grid,
     :data:`ENCODER_GRID_COHERENCE`), "linear" for any other x. Why it matters: the thresholds
-    depend on it (Thresholds.position_sensor). An x that never moves reads as the encoder."""
+    depend on it (Thresholds.position_sensor), and so does the filter on an end stop
+    (fdi.ukf.FilterConfig.stop_learners). An x that never moves reads as the encoder."""
     if "x" not in rec.signals:
         return "encoder"
     return "encoder" if encoder_grid_coherence(rec.signals["x"], plant) >= ENCODER_GRID_COHERENCE else "linear"
@@ -79,8 +80,10 @@ def encoder_grid_coherence(x: np.ndarray, plant: Plant) -> float:
     return float(np.abs(resultant).sum() / len(phase))
 
 
-def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = False) -> tuple[FilterInput, dict]:
-    """Check a (measured-only) recording and turn it into the filter's input."""
+def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = False,
+                 position_sensor: str | None = None) -> tuple[FilterInput, dict]:
+    """Check a (measured-only) recording and turn it into the filter's input. ``position_sensor``:
+    where its x came from (:func:`detect_position_sensor` when None)."""
     name = str(rec.source) if rec.source else "recording"
     if rec.n < 10:
         raise UserError(f"{name}: only {rec.n} samples; the filter needs at least 10")
@@ -112,9 +115,11 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
         u[~np.isfinite(u)] = 0.0
         info["u_gaps_held"] = int(np.isnan(sig["u"]).sum())
     pos, kind = sig[column], POS_X if column == "x" else POS_THETA
+    sensor = "encoder" if column == "theta" else position_sensor or detect_position_sensor(rec, plant)
     params = plant.vector()[None, :]
     inp = FilterInput(dt=dt, u=u[None, :], pA=sig["pA"][None, :], pB=sig["pB"][None, :], pos=pos[None, :],
-                      pos_kind=kind, params=params, pS=sig["pS"][None, :] if "pS" in sig else None)
+                      pos_kind=kind, params=params, pS=sig["pS"][None, :] if "pS" in sig else None,
+                      position_sensor=sensor)
     return inp, info
 
 
@@ -246,7 +251,7 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
     thresholds = Thresholds.shipped(sensor) if thresholds is None else thresholds
     cfg = preset(thresholds.filter) if cfg is None else cfg  # the filter the thresholds were made for
     rec, k = at_thresholds_rate(rec.measured(), thresholds)  # never the true_* columns
-    inp, info = filter_input(rec, plant, drop_out_of_range=drop_out_of_range)
+    inp, info = filter_input(rec, plant, drop_out_of_range=drop_out_of_range, position_sensor=sensor)
     if k > 1:
         info["decimated_by"] = k
     _check_duration(rec, thresholds, own_baseline=baseline is None)

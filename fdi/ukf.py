@@ -40,7 +40,7 @@ from dataclasses import dataclass, field, replace
 import numba
 import numpy as np
 
-from sam import P, S, step_batch_inplace
+from sam import P, S, step_batch_inplace, stroke_ends
 from sam.views import matrix, row
 from sam.hydraulics import leak_coefficient
 from sam.hydraulics import leak_lpm as _leak_lpm
@@ -206,6 +206,14 @@ class FilterConfig:
     nis_tau: float = 0.5  #: s, time constant of the exponentially weighted NIS
     nis_factor: float = 8.0  #: reset when the weighted NIS exceeds this many times its mean (m)
     jitter: float = 1e-9  #: first relative jitter added to the diagonal when Cholesky fails
+    #: where a linear sensor measures the piston within ``stop_margin_m`` of an end stop, only
+    #: these states (and the model states) learn from the position reading; the fault and the
+    #: other calibration states learn from the pressures alone there (:func:`_restrict_stop_gain`).
+    #: None: every state learns from every reading (until session 19). Not for the encoder: its
+    #: reading on a stop is off the stop by a constant part of a pulse, and with the gain
+    #: restricted the encoder's healthy tune populations false-alarmed 3 + 2 times against 0 + 0.
+    stop_learners: tuple | None = ("F_d", "c_m_L")
+    stop_margin_m: float = 1e-3  #: m: "on an end stop" for ``stop_learners``
 
     def with_(self, **kw) -> "FilterConfig":
         return replace(self, **kw)
@@ -542,11 +550,36 @@ def _truncate_leaks(z, Pm, shrink_cov, min_mass):
         z[j] = max(z[j], 0.0)
 
 
+@_jit_inline
+def _restrict_stop_gain(Kg, Pxz, Sm, learn, Spp):
+    """On an end stop, the gain K (n, 3) of the joint update [p_A, p_B, position] is replaced,
+    for every state not in ``learn`` (n,), by the optimal gain of the pressures alone, with no
+    gain from the position. Why: there the inelastic stop truncates the sigma points that cross
+    it, so the predicted position is biased off the stop, and its innovation pushes every state
+    that lowers the force lifting the piston: a leak out of the fed chamber as readily as the
+    load (docs/fdi.md, "End stops"). The reading only bounds the force balance, so only the
+    mechanical states and the load learn from it. Pxz (n, 3), Sm (3, 3) with R; Spp (2, 2)
+    work space. The gain is no longer optimal: the covariance update must take the general
+    form P - K Pxz^T - Pxz K^T + K S K^T."""
+    det = Sm[0, 0] * Sm[1, 1] - Sm[0, 1] * Sm[1, 0]
+    Spp[0, 0] = Sm[1, 1] / det
+    Spp[1, 1] = Sm[0, 0] / det
+    Spp[0, 1] = -Sm[0, 1] / det
+    Spp[1, 0] = -Sm[1, 0] / det
+    for j in range(Kg.shape[0]):
+        if not learn[j]:
+            k0 = Pxz[j, 0] * Spp[0, 0] + Pxz[j, 1] * Spp[1, 0]
+            k1 = Pxz[j, 0] * Spp[0, 1] + Pxz[j, 1] * Spp[1, 1]
+            Kg[j, 0] = k0
+            Kg[j, 1] = k1
+            Kg[j, 2] = 0.0
+
+
 @numba.njit(cache=True)
 def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind, Wm, Wc, lam, act, n_act,
          clip_leaks, project_mean, project_internal, constraint_mode, truncate_cov, truncate_min_mass,
          freeze_k, freeze_mask, freeze_sd, symmetrise, nis_alpha, nis_limit, jitter, dt, n_sub,
-         out_z, out_sd, out_nu, out_nis, counts, out_ll, n_steps, q_gate, gate_mask):
+         out_z, out_sd, out_nu, out_nis, counts, out_ll, n_steps, q_gate, gate_mask, stop_gate, stop_learn):
     """Run B filters over T samples.
 
     z0 (B,n) scaled initial means; P0 (B,n,n); Qd (n,n) scaled process noise per
@@ -566,6 +599,8 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     act[b, :n_act[b]] (in increasing order, the model states first); the others are HELD,
     known constants (no sigma points, no gain), and Wm, Wc (B, 2n+1), lam (B,) are the Merwe
     weights of n_act[b] states.
+    stop_gate (B, T) bool: the measured piston is on an end stop; there the position channel's
+    gain is restricted to the states with stop_learn (n,) True (:func:`_restrict_stop_gain`).
     """
     B, n = z0.shape
     T = u.shape[1]
@@ -610,6 +645,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     Kg = np.empty((n, m))
     Sinv = np.empty((m, m))
     prow = np.empty(m)
+    Spp = np.empty((2, 2))
     Qd = Qd.copy()
     inv_scale = 1.0 / scale  # a multiplication per sigma point and state, not a division
     nA = B  # active runs: b < nA (n_steps is non-increasing)
@@ -763,17 +799,25 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                             for e in range(mv):
                                 acc += Pxz[j, e] * Sinv[e, c]
                             Kg[j, c] = acc
+                    restricted = stop_gate[b, k] and mv == 3
+                    if restricted:
+                        _restrict_stop_gain(Kg, Pxz, Sm, stop_learn, Spp)
                     for j in range(n):
                         acc = 0.0
                         for c in range(mv):
                             acc += Kg[j, c] * innov[c]
                         z[b, j] += acc
-                    # P -= K S K^T (= K Pxz^T, symmetric: the lower triangle, mirrored)
+                    # optimal gain: P -= K S K^T (= K Pxz^T, symmetric: the lower triangle,
+                    # mirrored); a restricted one: P - K Pxz^T - Pxz K^T + K S K^T (any gain)
                     for j in range(n):
                         for l in range(j + 1):
                             acc = 0.0
                             for c in range(mv):
                                 acc += Kg[j, c] * Pxz[l, c]
+                                if restricted:
+                                    acc += Pxz[j, c] * Kg[l, c]
+                                    for e in range(mv):
+                                        acc -= Kg[j, c] * Sm[c, e] * Kg[l, e]
                             Pm[b, j, l] -= acc
                             Pm[b, l, j] = Pm[b, j, l]
                     ewnis[b] += nis_alpha * (nis * m / mv - ewnis[b])
@@ -842,10 +886,18 @@ class FilterInput:
     pos_kind: int  #: POS_X or POS_THETA
     params: np.ndarray  #: (B, len(P)) nominal plant vectors (healthy faults)
     pS: np.ndarray | None = None  #: (B, T) Pa, or None
+    #: where an x came from: "linear" (a transducer) or "encoder" (computed from the encoder's
+    #: angle, quantised); None: linear for x, encoder for theta
+    position_sensor: str | None = None
 
     @property
     def shape(self):
         return self.u.shape
+
+    @property
+    def linear_position(self) -> bool:
+        """The position reading is a linear transducer's x (continuous, not an encoder's pulses)."""
+        return self.pos_kind == POS_X and self.position_sensor != "encoder"
 
     def decimated(self, k: int) -> "FilterInput":
         """Every k-th sample (what a logger sampling k times more slowly records)."""
@@ -853,7 +905,8 @@ class FilterInput:
             return self
         every = lambda a: None if a is None else np.ascontiguousarray(a[:, ::k])  # noqa: E731
         return FilterInput(dt=self.dt * k, u=every(self.u), pA=every(self.pA), pB=every(self.pB),
-                           pos=every(self.pos), pos_kind=self.pos_kind, params=self.params, pS=every(self.pS))
+                           pos=every(self.pos), pos_kind=self.pos_kind, params=self.params, pS=every(self.pS),
+                           position_sensor=self.position_sensor)
 
 
 @dataclass
@@ -1020,6 +1073,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     if held.any() and np.any((P0 != 0.0) & held[:, :, None] & ~held[:, None, :]):
         raise ValueError("run_filter: a held state has prior covariance with a free one (P0)")
     q_gate, gate_mask = _calibration_hold(inp, cfg, n)
+    stop_gate, stop_learn = _stop_gain_gate(inp, cfg, n)
     _run(np.ascontiguousarray(z0[order], dtype=float), np.ascontiguousarray(P0[order], dtype=float), Qd, Rd,
          np.ascontiguousarray(inp.u[order], dtype=float), np.ascontiguousarray(y[order]),
          np.ascontiguousarray(pS[order]),
@@ -1028,7 +1082,8 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
          _CONSTRAINTS[cfg.constraint], bool(cfg.truncate_cov), float(cfg.truncate_min_mass),
          freeze_k, freeze_mask, float(cfg.freeze_sd_factor), bool(cfg.symmetrise),
          float(nis_alpha), float(nis_limit), float(cfg.jitter), float(inp.dt), model_substeps(inp.dt),
-         out_z, out_sd, out_nu, out_nis, counts, out_ll, steps[order], q_gate[order], gate_mask)
+         out_z, out_sd, out_nu, out_nis, counts, out_ll, steps[order], q_gate[order], gate_mask,
+         stop_gate[order], stop_learn)
     if not isinstance(order, slice):  # results in the caller's order
         back = np.argsort(order)
         out_z, out_sd, out_nu, out_nis, counts, out_ll = (
@@ -1056,7 +1111,7 @@ PRESETS = {
         calibrate=("m_L", "B_eff", "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT"),
         calib_noise=(("m_L", 0.25, 0.05), ("B_eff", 0.1, 0.005))),
     "legacy": FilterConfig(constraint="project", theta_noise_floor=2e-5, calibrate=(), calib_hold_after_s=None,
-                           calib_noise=(("m_L", 0.25, 0.05),)),
+                           calib_noise=(("m_L", 0.25, 0.05),), stop_learners=None),
 }
 #: Session 5 variants of "calibrated" (options; measured in docs/fdi-history.md, "Session 5"; none
 #: passes every fdi test, so none is the default and none ships a thresholds file; derive
@@ -1086,6 +1141,20 @@ def _calibration_hold(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.n
     mask[N_AUG:N_AUG + len(cfg.calibrate)] = True
     held = long_strokes(inp.u, inp.dt, cfg.calib_hold_band_V, cfg.calib_hold_after_s)
     return np.ascontiguousarray(np.where(held, 0.0, 1.0)), mask
+
+
+def _stop_gain_gate(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The gate of :attr:`FilterConfig.stop_learners`: (B, T) bool, a linear sensor's reading
+    within ``stop_margin_m`` of an end stop (False everywhere for the encoder, theta or x computed
+    from it, and where the reading is missing), and the (n,) states that learn from the position there."""
+    B, T = inp.u.shape
+    if cfg.stop_learners is None or not inp.linear_position:
+        return np.zeros((B, T), dtype=np.bool_), np.ones(n, dtype=np.bool_)
+    learn = np.array([i < N_MODEL or name in cfg.stop_learners for i, name in enumerate(state_names(cfg))])
+    x, x_end = inp.pos, stroke_ends(inp.params)[:, None]
+    with np.errstate(invalid="ignore"):  # NaN readings compare False: not on a stop
+        gate = (x <= cfg.stop_margin_m) | (x >= x_end - cfg.stop_margin_m)
+    return np.ascontiguousarray(gate), learn
 
 
 def preset(name: str) -> FilterConfig:

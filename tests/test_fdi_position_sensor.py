@@ -12,7 +12,7 @@ import pytest
 from sam import load_plant
 from sam.scenario import load_scenario, run_scenario
 from fdi.detect import SHIPPED_BY_SENSOR, Thresholds
-from fdi.replay import detect_position_sensor, replay
+from fdi.replay import detect_position_sensor, filter_input, replay
 from fdi.synth import POSITION_SENSORS, simulate_runs
 from fdi.ukf import I_X, POS_THETA, POS_X
 
@@ -58,6 +58,10 @@ def test_sensor_of_a_recording(recorded, cycle, linear_x):
         assert detect_position_sensor(_with_x(cycle, on_grid), p) == "encoder"
     for continuous in (recorded.truth["true_x"], linear_x):
         assert detect_position_sensor(_with_x(cycle, continuous), plant) == "linear"
+    # the filter's input says which, for its end-stop gain (fdi.ukf.FilterConfig.stop_learners)
+    assert filter_input(_with_x(cycle, linear_x), plant)[0].linear_position
+    assert not filter_input(cycle, plant)[0].linear_position  # x computed from the encoder
+    assert filter_input(cycle, plant, position_sensor="linear")[0].linear_position  # as the user says
 
 
 def test_each_sensor_has_a_shipped_file():
