@@ -30,6 +30,9 @@ Robustness (see docs/fdi.md):
   covariance to its initial value (counted and reported); a non-finite state
   resets the state to the last good one.
 * NaN measurements: the step predicts without updating those channels.
+* on an end stop, a linear sensor's position updates only the model states and the load
+  (``FilterConfig.stop_learners``): the inelastic stop truncates the sigma points, and the
+  position's one-sided innovation there is no evidence about the leaks or the valve.
 """
 
 from __future__ import annotations
