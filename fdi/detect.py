@@ -36,11 +36,11 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from sam import P, S, stroke_ends
+from sam import P, S
 from sam.errors import did_you_mean
 
 from .strokes import directions, first_motion, long_strokes
-from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, I_X, FilterOutput, leak_lpm, sample_step
+from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, I_X, FilterOutput, leak_lpm, near_end_stop, sample_step
 
 #: Fault hypotheses and the state each one reads (sign: +1 above healthy, -1 below).
 HYPOTHESES = {
@@ -339,16 +339,13 @@ def pinned(out: FilterOutput, th: "Thresholds") -> np.ndarray:
 
 
 def on_end_stop(out: FilterOutput) -> np.ndarray:
-    """(B, T) bool: the piston within STOP_MARGIN_M of an end stop (0, or the extension stop:
-    the stroke or the joint limit theta_max, whichever comes first, :func:`sam.stroke_ends`).
+    """(B, T) bool: the piston within STOP_MARGIN_M of an end stop (:func:`fdi.ukf.near_end_stop`).
     Position: the filter's posterior mean. False where the output carries no measured data
     (``out.inp``)."""
     B, T = out.mean.shape[:2]
     if out.inp is None:
         return np.zeros((B, T), dtype=bool)
-    x_end = stroke_ends(out.inp.params)
-    x = out.mean[:, :, I_X]
-    return (x <= STOP_MARGIN_M) | (x >= x_end[:, None] - STOP_MARGIN_M)
+    return near_end_stop(out.mean[:, :, I_X], out.inp.params, STOP_MARGIN_M)
 
 
 def resting_on_stop(out: FilterOutput, th: "Thresholds") -> np.ndarray:

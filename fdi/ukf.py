@@ -1154,10 +1154,16 @@ def _stop_gain_gate(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.nda
     if cfg.stop_learners is None or not inp.linear_position:
         return np.zeros((B, T), dtype=np.bool_), np.ones(n, dtype=np.bool_)
     learn = np.array([i < N_MODEL or name in cfg.stop_learners for i, name in enumerate(state_names(cfg))])
-    x, x_end = inp.pos, stroke_ends(inp.params)[:, None]
-    with np.errstate(invalid="ignore"):  # NaN readings compare False: not on a stop
-        gate = (x <= cfg.stop_margin_m) | (x >= x_end - cfg.stop_margin_m)
-    return np.ascontiguousarray(gate), learn
+    return np.ascontiguousarray(near_end_stop(inp.pos, inp.params, cfg.stop_margin_m)), learn
+
+
+def near_end_stop(x: np.ndarray, params: np.ndarray, margin_m: float) -> np.ndarray:
+    """(B, T) bool: piston positions x (B, T) [m] within ``margin_m`` of an end stop of their
+    plant vector params (B, len(P)): 0, or the extension stop (the stroke or the joint limit
+    theta_max, whichever comes first, :func:`sam.stroke_ends`). NaN is not near a stop."""
+    x_end = stroke_ends(params)[:, None]
+    with np.errstate(invalid="ignore"):
+        return (x <= margin_m) | (x >= x_end - margin_m)
 
 
 def preset(name: str) -> FilterConfig:
