@@ -560,10 +560,10 @@ def _restrict_stop_gain(Kg, Pxz, Sm, learn, Spp):
     gain from the position. Why: there the inelastic stop truncates the sigma points that cross
     it, so the predicted position is biased off the stop, and its innovation pushes every state
     that lowers the force lifting the piston: a leak out of the fed chamber as readily as the
-    load (docs/fdi.md, "End stops"). The reading only bounds the force balance, so only the
-    mechanical states and the load learn from it. Pxz (n, 3), Sm (3, 3) with R; Spp (2, 2)
-    work space. The gain is no longer optimal: the covariance update must take the general
-    form P - K Pxz^T - Pxz K^T + K S K^T."""
+    load (docs/fdi.md, "The filter": "End stops, linear sensor"). The reading only bounds the
+    force balance, so only the mechanical states and the load learn from it. Pxz (n, 3), Sm
+    (3, 3) with R; Spp (2, 2) work space. The gain is no longer optimal: the covariance update
+    must take the general form P - K Pxz^T - Pxz K^T + K S K^T."""
     det = Sm[0, 0] * Sm[1, 1] - Sm[0, 1] * Sm[1, 0]
     Spp[0, 0] = Sm[1, 1] / det
     Spp[1, 1] = Sm[0, 0] / det
