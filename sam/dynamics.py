@@ -25,7 +25,9 @@ from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, s
 from .geometry import (
     cos_joint_angle, load_torque_cs, stroke_end, torque_arm_cs, total_inertia,
 )
-from .hydraulics import fault_leakages, flow_coefficient, pressure_rate, valve_flows
+from .hydraulics import (
+    fault_leakages, flow_coefficient, leak_conductance, inverse_capacitance, valve_flows_conductances,
+)
 from .params import P
 
 # error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
@@ -125,24 +127,37 @@ def rhs(s, u, p, d, ds):
     of :class:`sam.params.Effects` enter through the hydraulics and friction
     functions.
     """
+    rates(s, u, p, d, ds)
+
+
+@jit_inline
+def rates(s, u, p, d, ds):
+    """:func:`rhs`, and returns each chamber's pressure stiffness (k_A, k_B) [1/s]: the rate at
+    which its pressure relaxes onto the pressures it is joined to, c G, with c = d(dp/dt)/dQ its
+    inverse capacitance (Eqs. (8)-(9)) and G the sum of the chord conductances q / dp of its
+    paths (the open metering edges, the null leakage, the fault leaks and the bypass)."""
     p_A, p_B, x_s, dx_s, x, v, z = s[0], s[1], s[2], s[3], s[4], s[5], s[6]
     A_A, A_B = d[D.A_A], d[D.A_B]
 
     # Hydraulics, Eqs. (8)-(14), (41)-(43)
-    Q_A, Q_B = valve_flows(
+    Q_A, Q_B, G_A, G_B = valve_flows_conductances(
         x_s, p_A, p_B, p[P.offset], p[P.p_S], p[P.p_T],
         d[D.K_PA], d[D.K_AT], d[D.K_PB], d[D.K_BT],
         p[P.K_leak_PA], p[P.K_leak_AT], p[P.K_leak_PB], p[P.K_leak_BT], p[P.leak_band],
         p[P.lap], p[P.R_supply], p[P.Q_sat],
     )
-    Q_int, Q_extA, Q_extB = fault_leakages(p_A, p_B, p[P.p_T], p[P.K_int], p[P.K_extA], p[P.K_extB])
+    p_T, K_int, K_extA, K_extB = p[P.p_T], p[P.K_int], p[P.K_extA], p[P.K_extB]
+    Q_int, Q_extA, Q_extB = fault_leakages(p_A, p_B, p_T, K_int, K_extA, K_extB)
     Q_bypass = p[P.K_bypass] * (p_A - p_B)
     Q_netA = Q_A - Q_int - Q_extA - Q_bypass + p[P.Q_dA] - A_A * v
     Q_netB = Q_B + Q_int - Q_extB + Q_bypass + p[P.Q_dB] + A_B * v
-    V_A = p[P.V_0A] + A_A * x
-    V_B = p[P.V_0B] + A_B * (p[P.x_max] - x)
-    ds[0] = pressure_rate(Q_netA, V_A, p_A, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
-    ds[1] = pressure_rate(Q_netB, V_B, p_B, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
+    G_int = leak_conductance(K_int, p_A - p_B) + p[P.K_bypass]
+    G_A += G_int + leak_conductance(K_extA, p_A - p_T)
+    G_B += G_int + leak_conductance(K_extB, p_B - p_T)
+    c_A = inverse_capacitance(p[P.V_0A] + A_A * x, p_A, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
+    c_B = inverse_capacitance(p[P.V_0B] + A_B * (p[P.x_max] - x), p_B, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
+    ds[0] = Q_netA * c_A  # Eqs. (8)-(9)
+    ds[1] = Q_netB * c_B
 
     # Spool, Eq. (15), with the dimensionally consistent K omega_n^2 u
     w = p[P.omega_n]
@@ -173,14 +188,27 @@ def rhs(s, u, p, d, ds):
     ds[4] = v
     ds[5] = (p_A * A_A - p_B * A_B - F_mu - F_ext) * inv_m_red
     ds[6] = dz
+    return c_A * G_A, c_B * G_B
 
 
 @jit_inline
 def euler_step(s, u, p, d, dt, ds):
-    """Eq. (22): advance state ``s`` (7,) in place by one forward-Euler step of ``dt`` [s].
+    """Eq. (22): advance state ``s`` (7,) in place by one forward-Euler step of ``dt`` [s], a
+    chamber pressure semi-implicit where it is stiff.
 
     ``p`` is the parameter vector, ``d`` its :func:`derive`d constants and
-    ``ds`` (7,) scratch space. Afterwards the state is kept physical:
+    ``ds`` (7,) scratch space.
+
+    Stiff chambers: a chamber joined through an open metering edge to the tank or the supply
+    with little flow (the piston on an end stop or stalled, the valve open) relaxes onto that
+    rail at a rate k = c G (:func:`rates`) that grows without bound as the edge's pressure
+    drop vanishes (the slope of ``sqrt(dp)``). Forward Euler with dt k > 1 steps across the
+    rail, and at 1 ms it settles into a period-2 oscillation around it, of amplitude
+    (dt c K_v x_s)^2 / 4: 11 kPa in p_A on the retracted stop at 2.4 V (docs/model.md,
+    "Numerics"). Where dt k > 1 the pressure's step is divided by dt k: the backward-Euler
+    step of a path ``q = G (p_rail - p)`` linearised by its chord conductance, which lands on
+    the rail instead of crossing it. Elsewhere (every transient and stroke measured) the step
+    is forward Euler's, unchanged. Afterwards the state is kept physical:
 
     * pressures are clamped at the cavitation floor :data:`P_CAVITATION`
       (flagged with :data:`FLAG_CAVITATION`, since Eqs. (8)-(9) no longer hold);
@@ -189,7 +217,9 @@ def euler_step(s, u, p, d, dt, ds):
 
     Returns the flag word (0 when nothing was clamped but the end stops).
     """
-    rhs(s, u, p, d, ds)
+    k_A, k_B = rates(s, u, p, d, ds)
+    ds[0] /= max(1.0, dt * k_A)
+    ds[1] /= max(1.0, dt * k_B)
     for j in range(N_STATES):
         s[j] += dt * ds[j]
     flags = 0

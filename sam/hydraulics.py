@@ -42,12 +42,31 @@ def orifice_flow(K_v, opening, dp, R_supply, Q_sat):
       For notches draining to tank pass ``R_supply = 0``.
     * flow saturation: ``|q| <= Q_sat`` (``inf`` disables it).
     """
+    return orifice_flow_conductance(K_v, opening, dp, R_supply, Q_sat)[0]
+
+
+#: Pa: the chord conductance q / dp of a turbulent path (:func:`orifice_flow_conductance`,
+#: :func:`leak_conductance`) is evaluated at a pressure difference of at least this
+DP_CONDUCTANCE_MIN = 1.0
+
+
+@jit
+def orifice_flow_conductance(K_v, opening, dp, R_supply, Q_sat):
+    """(q, G): the flow of :func:`orifice_flow` [m^3/s] and its chord conductance G = q / dp
+    [m^3/(s Pa)], ``2 k / (sqrt((R k)^2 + 4 |dp|) + R k)`` (``k / sqrt(|dp|)`` without the droop;
+    ``Q_sat / |dp|`` when saturated), taken at |dp| >= DP_CONDUCTANCE_MIN. G is what the
+    semi-implicit pressure step needs (:func:`sam.dynamics.euler_step`); the one square root
+    serves both."""
     k = K_v * opening
     if k == 0.0:  # closed edge: most of the time for two of the four
-        return 0.0
+        return 0.0, 0.0
     Rk = R_supply * k
-    q = math.copysign(k * 0.5 * (math.sqrt(Rk * Rk + 4.0 * abs(dp)) - Rk), dp)
-    return math.copysign(min(abs(q), Q_sat), q)
+    root = math.sqrt(Rk * Rk + 4.0 * abs(dp))
+    q = math.copysign(k * 0.5 * (root - Rk), dp)
+    G = 2.0 * k / (max(root, 2.0 * math.sqrt(DP_CONDUCTANCE_MIN)) + Rk)
+    if abs(q) > Q_sat:
+        return math.copysign(Q_sat, q), Q_sat / max(abs(dp), DP_CONDUCTANCE_MIN)
+    return q, G
 
 
 @jit
@@ -78,14 +97,41 @@ def null_leakage(x_s, offset, p_chamber, p_S, p_T, K_leak_in, K_leak_out, leak_b
 def valve_flows(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
                 K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, R_supply, Q_sat):
     """Eqs. (10)-(11): valve flows (Q_A, Q_B) [m^3/s] into chambers A and B."""
-    a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap)
-    q_PA = orifice_flow(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat)
-    q_AT = orifice_flow(K_AT, a_PB_AT, p_A - p_T, 0.0, Q_sat)
-    q_PB = orifice_flow(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat)
-    q_BT = orifice_flow(K_BT, a_PA_BT, p_B - p_T, 0.0, Q_sat)
-    Q_A = q_PA - q_AT + null_leakage(x_s, offset, p_A, p_S, p_T, K_leak_PA, K_leak_AT, leak_band)
-    Q_B = q_PB - q_BT + null_leakage(x_s, offset, p_B, p_S, p_T, K_leak_PB, K_leak_BT, leak_band)
+    Q_A, Q_B, _, _ = valve_flows_conductances(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
+                                              K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap,
+                                              R_supply, Q_sat)
     return Q_A, Q_B
+
+
+@jit
+def valve_flows_conductances(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
+                             K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, R_supply, Q_sat):
+    """(Q_A, Q_B, G_A, G_B): the valve flows of :func:`valve_flows` and, per chamber, the sum of
+    the chord conductances [m^3/(s Pa)] of the valve paths that join it to the supply and the
+    tank (the open metering edges, :func:`orifice_flow_conductance`, and the laminar null
+    leakage)."""
+    a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap)
+    q_PA, g_PA = orifice_flow_conductance(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat)
+    q_AT, g_AT = orifice_flow_conductance(K_AT, a_PB_AT, p_A - p_T, 0.0, Q_sat)
+    q_PB, g_PB = orifice_flow_conductance(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat)
+    q_BT, g_BT = orifice_flow_conductance(K_BT, a_PA_BT, p_B - p_T, 0.0, Q_sat)
+    Q_A = q_PA - q_AT
+    Q_B = q_PB - q_BT
+    G_A = g_PA + g_AT
+    G_B = g_PB + g_BT
+    if abs(x_s + offset) < leak_band:  # Eqs. (13)-(14)
+        Q_A += null_leakage(x_s, offset, p_A, p_S, p_T, K_leak_PA, K_leak_AT, leak_band)
+        Q_B += null_leakage(x_s, offset, p_B, p_S, p_T, K_leak_PB, K_leak_BT, leak_band)
+        G_A += K_leak_PA + K_leak_AT
+        G_B += K_leak_PB + K_leak_BT
+    return Q_A, Q_B, G_A, G_B
+
+
+@jit
+def leak_conductance(K, dp):
+    """Chord conductance q / dp [m^3/(s Pa)] of a turbulent leak ``q = K ssqrt(dp)`` (Eqs. (41)-(43)):
+    ``K / sqrt(|dp|)``, taken at |dp| >= DP_CONDUCTANCE_MIN; 0 without the leak."""
+    return K / math.sqrt(max(abs(dp), DP_CONDUCTANCE_MIN)) if K != 0.0 else 0.0
 
 
 @jit
@@ -129,14 +175,13 @@ def effective_bulk_modulus(p, B_eff, air_fraction):
 
 
 @jit
-def pressure_rate(Q_net, V, p, B_eff, air_fraction, C_hose):
-    """Eqs. (8)-(9): dp/dt [Pa/s] of a chamber of volume V [m^3] with net inflow Q_net [m^3/s].
-
-    ``Q_net`` already includes the piston's displacement flow. The chamber's
-    capacitance is ``V / B`` plus an optional hose compliance C_hose [m^3/Pa].
-    """
+def inverse_capacitance(V, p, B_eff, air_fraction, C_hose):
+    """Eqs. (8)-(9): dp/dt per unit net inflow [Pa/m^3] of a chamber of volume V [m^3] at
+    pressure p [Pa], ``1 / (V/B + C_hose)``: its bulk modulus over its volume, plus an
+    optional hose compliance C_hose [m^3/Pa]. ``dp/dt = Q_net / (V/B + C_hose)``, where
+    ``Q_net`` includes the piston's displacement flow."""
     B = effective_bulk_modulus(p, B_eff, air_fraction)
-    return Q_net * B / (V + C_hose * B)  # = Q_net / (V/B + C_hose), with one division
+    return B / (V + C_hose * B)  # = 1 / (V/B + C_hose), with one division
 
 
 def supply_flow_array(x_s, p_A, p_B, p):
