@@ -417,8 +417,10 @@ def test_the_position_on_an_end_stop_does_not_push_the_leaks(plant_vector):
     """Eight overloaded machines (800 kg, nuisance parameters drawn as in the tune) held on the
     retracted stop by the load while the valve cycles +-2.5 V, from a linear sensor: with every
     state learning from the position there, the truncated sigma points' one-sided position
-    innovation drives the K_extA estimate up (a smaller p_A lifts less) to 0.13-0.18 L/min; with
-    only the load learning from it, 0.07-0.12 L/min on every machine (the rest is pressure)."""
+    innovation drives the K_extA estimate up (a smaller p_A lifts less) to 0.14-0.19 L/min; with
+    only the load learning from it, 0.10-0.15 L/min on every machine (the rest is pressure).
+    (Session 20 measured 0.13-0.18 and 0.07-0.12 with the model's forward-Euler chatter of the
+    pinned pressures, fixed in session 21.)"""
     from fdi.montecarlo import draw_truth
     B, T = 8, 10001
     true = draw_truth(load_plant(), B, np.random.default_rng(7))
@@ -430,5 +432,5 @@ def test_the_position_on_an_end_stop_does_not_push_the_leaks(plant_vector):
     peak = {learners: ukf.leak_lpm(run_filter(runs.inp, FilterConfig(stop_learners=learners)).mean[:, 2000:, ukf.I_KEXTA]).max(axis=1)
             for learners in (("F_d", "c_m_L"), None)}
     assert np.all(peak[("F_d", "c_m_L")] < peak[None])
-    assert peak[("F_d", "c_m_L")].mean() < 0.7 * peak[None].mean()
-    assert peak[None].min() > 0.12 and peak[("F_d", "c_m_L")].max() < 0.125
+    assert peak[("F_d", "c_m_L")].mean() < 0.8 * peak[None].mean()
+    assert peak[None].min() > 0.13 and peak[("F_d", "c_m_L")].max() < 0.16

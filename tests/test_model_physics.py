@@ -275,3 +275,55 @@ def test_no_nan_or_inf_over_parameter_box(unit, u, m_L):
         assert np.all(np.isfinite(res[name]))
     assert np.all(res["p_A"] >= sam.constants.P_CAVITATION)
     assert np.all((res["x"] >= 0) & (res["x"] <= p[P.x_max]))
+
+
+def _last_seconds(res, name, seconds):
+    return res[name][0, -int(round(seconds / DT)):]
+
+
+@settings(max_examples=40, deadline=None)
+@given(u=st.floats(1.0, 10.0), B_eff=st.floats(3e8, 1.2e9), m_L=st.floats(0.0, 800.0),
+       Q_N=st.floats(15 * LPM, 35 * LPM))
+def test_a_chamber_pinned_to_the_tank_settles_on_it(u, B_eff, m_L, Q_N):
+    """On the retracted end stop with the valve open to retract, chamber A drains through the
+    open A->T edge and nothing else flows: p_A settles on the tank pressure and B on the supply
+    (no load, no leak to balance them), and stays there. Forward Euler did not: the edge's flow
+    k sqrt(dp) has an infinite slope at dp = 0, and the 1 ms step crossed the rail every step,
+    a period-2 oscillation of amplitude (dt c k x_s)^2 / 4 (11 kPa at 2.4 V, up to ~70 kPa
+    over this box: sam.dynamics.euler_step)."""
+    p = PLANT.replace(m_L=m_L, B_eff=B_eff).vector()
+    p[P.Q_N_AT] = Q_N
+    res = run(p, -u, 6.0, x0=sam.initial_state(p, 0.01), record_every=1)
+    assert np.all(_last_seconds(res, "x", 1.0) == 0.0)  # on the stop
+    p_A, p_B = _last_seconds(res, "p_A", 1.0), _last_seconds(res, "p_B", 1.0)
+    assert np.max(np.abs(p_A - p[P.p_T])) < 5.0  # Pa
+    assert np.max(np.abs(np.diff(p_A))) < 5.0
+    assert np.max(np.abs(p_B - p[P.p_S])) < 5.0
+
+
+def test_a_stalled_piston_rests_with_its_pressures_on_the_rails():
+    """800 kg cannot be lifted from x = 0.05 m at 10 MPa (docs/model.md): with the valve open to
+    extend, the piston stalls held by stiction, A fills to the supply and B drains to the tank,
+    and both stay there without the step-to-step oscillation of forward Euler."""
+    p = PLANT.replace(m_L=800.0).vector()
+    res = run(p, 4.0, 4.0, x0=sam.initial_state(p, 0.05), record_every=1)
+    x = _last_seconds(res, "x", 1.0)
+    assert np.ptp(x) < 1e-6  # stalled
+    assert np.max(np.abs(_last_seconds(res, "p_A", 1.0) - p[P.p_S])) < 5.0
+    assert np.max(np.abs(_last_seconds(res, "p_B", 1.0) - p[P.p_T])) < 5.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(x=st.floats(0.02, 0.4), v=st.floats(-0.05, 0.05), x_s=st.floats(-0.5, 0.5),
+       p_A=st.floats(1e6, 9e6), p_B=st.floats(1e6, 9e6), u=st.floats(-10.0, 10.0))
+def test_step_is_forward_euler_where_no_chamber_is_stiff(x, v, x_s, p_A, p_B, u):
+    """Away from the rails (both chambers at least 1 MPa from the tank and the supply) no
+    chamber is stiff at 1 ms, and the step is exactly Eq. (22)'s forward Euler, s + dt f(s):
+    the semi-implicit pressure step changes nothing there."""
+    p = PLANT.vector()
+    d = derived(p)
+    s = np.array([p_A, p_B, x_s, 0.0, x, v, 0.0])
+    f = np.empty(7)
+    rhs(s, u, p, d, f)
+    new, _ = sam.step_batch(s[None], np.array([u]), p[None], DT)
+    assert np.array_equal(new[0], s + DT * f)
