@@ -394,7 +394,8 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     that rest 1.6, 3.0 and 6.3 s before their first stroke, unknown load 378-524 kg, from the
     encoder, judged as replay and the tune judge them (bank confirmation): none false-alarms.
     With the baseline learnt at rest, as until session 18, each false-alarmed (K_int, K_int,
-    K_extA) within 0.2 s of its first motion."""
+    K_extA) within 0.2 s of its first motion; since session 21 (the model without its chatter on
+    the pressure rails, thresholds re-derived) the two K_int ones still do, the third no longer."""
     from dataclasses import replace
 
     from sam import load_plant
@@ -418,7 +419,7 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
 
     assert not stood().any()
     monkeypatch.setattr(detect, "before_motion", lambda out, th: np.zeros(out.mean.shape[:2], dtype=bool))
-    assert stood().all()
+    assert stood()[:2].all()
 
 
 def test_internal_leak_test_is_held_where_the_chamber_pressures_balance(monkeypatch):
