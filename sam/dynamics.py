@@ -151,9 +151,9 @@ def rates(s, u, p, d, ds):
     Q_bypass = p[P.K_bypass] * (p_A - p_B)
     Q_netA = Q_A - Q_int - Q_extA - Q_bypass + p[P.Q_dA] - A_A * v
     Q_netB = Q_B + Q_int - Q_extB + Q_bypass + p[P.Q_dB] + A_B * v
-    G_int = leak_conductance(K_int, p_A - p_B) + p[P.K_bypass]
-    G_A += G_int + leak_conductance(K_extA, p_A - p_T)
-    G_B += G_int + leak_conductance(K_extB, p_B - p_T)
+    G_int = leak_conductance(Q_int, p_A - p_B) + p[P.K_bypass]
+    G_A += G_int + leak_conductance(Q_extA, p_A - p_T)
+    G_B += G_int + leak_conductance(Q_extB, p_B - p_T)
     c_A = inverse_capacitance(p[P.V_0A] + A_A * x, p_A, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
     c_B = inverse_capacitance(p[P.V_0B] + A_B * (p[P.x_max] - x), p_B, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
     ds[0] = Q_netA * c_A  # Eqs. (8)-(9)

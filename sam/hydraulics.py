@@ -128,10 +128,11 @@ def valve_flows_conductances(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, 
 
 
 @jit
-def leak_conductance(K, dp):
-    """Chord conductance q / dp [m^3/(s Pa)] of a turbulent leak ``q = K ssqrt(dp)`` (Eqs. (41)-(43)):
-    ``K / sqrt(|dp|)``, taken at |dp| >= DP_CONDUCTANCE_MIN; 0 without the leak."""
-    return K / math.sqrt(max(abs(dp), DP_CONDUCTANCE_MIN)) if K != 0.0 else 0.0
+def leak_conductance(q, dp):
+    """Chord conductance q / dp [m^3/(s Pa)] of a turbulent leak that passes ``q`` at the pressure
+    difference ``dp`` (Eqs. (41)-(43)), taken at |dp| >= DP_CONDUCTANCE_MIN: from the flow already
+    computed, with a division and no square root."""
+    return abs(q) / max(abs(dp), DP_CONDUCTANCE_MIN)
 
 
 @jit
