@@ -2,7 +2,8 @@
 
 Nurmi & Mattila (2011), Section 2: a servo valve, an asymmetric cylinder, a boom
 with loads, LuGre friction and leakage faults, advanced by forward Euler
-(Eq. (22)). One step function, :func:`euler_step`, serves the batch simulator,
+(Eq. (22); a chamber pressure semi-implicit where it is stiff, against a rail through an open
+edge). One step function, :func:`euler_step`, serves the batch simulator,
 the global sensitivity analysis and the Unscented Kalman Filter.
 
 Public face:

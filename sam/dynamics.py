@@ -1,4 +1,5 @@
-"""The model's state, right-hand side (Eq. (19)) and forward-Euler step (Eq. (22)).
+"""The model's state, right-hand side (Eq. (19)) and Euler step (Eq. (22); semi-implicit where a
+chamber pressure is stiff, :func:`euler_step`).
 
 This module is the one place where the physics is assembled. The batch
 simulator, the global sensitivity analysis and the Unscented Kalman Filter all
@@ -25,9 +26,7 @@ from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, s
 from .geometry import (
     cos_joint_angle, load_torque_cs, stroke_end, torque_arm_cs, total_inertia,
 )
-from .hydraulics import (
-    fault_leakages, flow_coefficient, leak_conductance, inverse_capacitance, valve_flows_conductances,
-)
+from .hydraulics import fault_leakages, flow_coefficient, inverse_capacitance, leak_conductance, valve_flows
 from .params import P
 
 # error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
@@ -132,15 +131,17 @@ def rhs(s, u, p, d, ds):
 
 @jit_inline
 def rates(s, u, p, d, ds):
-    """:func:`rhs`, and returns each chamber's pressure stiffness (k_A, k_B) [1/s]: the rate at
-    which its pressure relaxes onto the pressures it is joined to, c G, with c = d(dp/dt)/dQ its
-    inverse capacitance (Eqs. (8)-(9)) and G the sum of the chord conductances q / dp of its
-    paths (the open metering edges, the null leakage, the fault leaks and the bypass)."""
+    """Eq. (19) as :func:`rhs` writes it into ``ds``, and returns each chamber's pressure
+    stiffness (k_A, k_B) [1/s]: the rate at which its pressure relaxes onto the pressures it is
+    joined to, c G, with c = d(dp/dt)/dQ its inverse capacitance (Eqs. (8)-(9)) and G the sum of
+    the chord conductances q / dp of its paths to the supply and the tank (the open metering
+    edges, the null leakage, the external leaks); a path to the other chamber (the internal leak,
+    the bypass) counts at (c_A + c_B) G, the rate of the pressure difference it relaxes."""
     p_A, p_B, x_s, dx_s, x, v, z = s[0], s[1], s[2], s[3], s[4], s[5], s[6]
     A_A, A_B = d[D.A_A], d[D.A_B]
 
     # Hydraulics, Eqs. (8)-(14), (41)-(43)
-    Q_A, Q_B, G_A, G_B = valve_flows_conductances(
+    Q_A, Q_B, G_A, G_B = valve_flows(
         x_s, p_A, p_B, p[P.offset], p[P.p_S], p[P.p_T],
         d[D.K_PA], d[D.K_AT], d[D.K_PB], d[D.K_BT],
         p[P.K_leak_PA], p[P.K_leak_AT], p[P.K_leak_PB], p[P.K_leak_BT], p[P.leak_band],
@@ -151,11 +152,12 @@ def rates(s, u, p, d, ds):
     Q_bypass = p[P.K_bypass] * (p_A - p_B)
     Q_netA = Q_A - Q_int - Q_extA - Q_bypass + p[P.Q_dA] - A_A * v
     Q_netB = Q_B + Q_int - Q_extB + Q_bypass + p[P.Q_dB] + A_B * v
-    G_int = leak_conductance(Q_int, p_A - p_B) + p[P.K_bypass]
-    G_A += G_int + leak_conductance(Q_extA, p_A - p_T)
-    G_B += G_int + leak_conductance(Q_extB, p_B - p_T)
-    c_A = inverse_capacitance(p[P.V_0A] + A_A * x, p_A, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
-    c_B = inverse_capacitance(p[P.V_0B] + A_B * (p[P.x_max] - x), p_B, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
+    G_A += leak_conductance(Q_extA, p_A - p_T, K_extA)
+    G_B += leak_conductance(Q_extB, p_B - p_T, K_extB)
+    G_AB = leak_conductance(Q_int, p_A - p_B, K_int) + p[P.K_bypass]  # the paths between the chambers
+    B_eff, air, C_hose = p[P.B_eff], p[P.air_fraction], p[P.C_hose]
+    c_A = inverse_capacitance(p[P.V_0A] + A_A * x, p_A, B_eff, air, C_hose)
+    c_B = inverse_capacitance(p[P.V_0B] + A_B * (p[P.x_max] - x), p_B, B_eff, air, C_hose)
     ds[0] = Q_netA * c_A  # Eqs. (8)-(9)
     ds[1] = Q_netB * c_B
 
@@ -188,7 +190,10 @@ def rates(s, u, p, d, ds):
     ds[4] = v
     ds[5] = (p_A * A_A - p_B * A_B - F_mu - F_ext) * inv_m_red
     ds[6] = dz
-    return c_A * G_A, c_B * G_B
+    # a path between the chambers relaxes their DIFFERENCE, at (c_A + c_B) G: counted so, the
+    # step lands the difference on zero instead of swapping the two pressures
+    c_AB = (c_A + c_B) * G_AB
+    return c_A * G_A + c_AB, c_B * G_B + c_AB
 
 
 @jit_inline

@@ -46,24 +46,28 @@ def orifice_flow(K_v, opening, dp, R_supply, Q_sat):
 
 
 #: Pa: the chord conductance q / dp of a turbulent path (:func:`orifice_flow_conductance`,
-#: :func:`leak_conductance`) is evaluated at a pressure difference of at least this
-DP_CONDUCTANCE_MIN = 1.0
+#: :func:`leak_conductance`), infinite at dp = 0, is evaluated at a pressure difference of at
+#: least this; a chamber that relaxes onto a rail through such a path then rests within about a
+#: quarter of it (measured: 0.25 Pa at 1 Pa)
+DP_CONDUCTANCE_MIN = 1e-3
 
 
 @jit
 def orifice_flow_conductance(K_v, opening, dp, R_supply, Q_sat):
-    """(q, G): the flow of :func:`orifice_flow` [m^3/s] and its chord conductance G = q / dp
-    [m^3/(s Pa)], ``2 k / (sqrt((R k)^2 + 4 |dp|) + R k)`` (``k / sqrt(|dp|)`` without the droop;
-    ``Q_sat / |dp|`` when saturated), taken at |dp| >= DP_CONDUCTANCE_MIN. G is what the
-    semi-implicit pressure step needs (:func:`sam.dynamics.euler_step`); the one square root
-    serves both."""
+    """(q, G) of one metering edge of Eqs. (10)-(11): the flow of :func:`orifice_flow` [m^3/s]
+    and its chord conductance G = q / dp [m^3/(s Pa)], ``2 k / (sqrt((R k)^2 + 4 |dp|) + R k)``
+    (``k / sqrt(|dp|)`` without the droop; ``Q_sat / |dp|`` when saturated), taken at
+    |dp| >= DP_CONDUCTANCE_MIN. G is what the semi-implicit pressure step needs
+    (:func:`sam.dynamics.euler_step`); the one square root serves both."""
     k = K_v * opening
     if k == 0.0:  # closed edge: most of the time for two of the four
         return 0.0, 0.0
     Rk = R_supply * k
     root = math.sqrt(Rk * Rk + 4.0 * abs(dp))
     q = math.copysign(k * 0.5 * (root - Rk), dp)
-    G = 2.0 * k / (max(root, 2.0 * math.sqrt(DP_CONDUCTANCE_MIN)) + Rk)
+    if abs(dp) < DP_CONDUCTANCE_MIN:  # the chord at the floor (rare: the square root again)
+        root = math.sqrt(Rk * Rk + 4.0 * DP_CONDUCTANCE_MIN)
+    G = 2.0 * k / (root + Rk)
     if abs(q) > Q_sat:
         return math.copysign(Q_sat, q), Q_sat / max(abs(dp), DP_CONDUCTANCE_MIN)
     return q, G
@@ -83,56 +87,43 @@ def edge_openings(x_s, offset, lap):
 
 
 @jit
-def null_leakage(x_s, offset, p_chamber, p_S, p_T, K_leak_in, K_leak_out, leak_band):
-    """Eqs. (13)-(14): laminar null leakage [m^3/s] into a chamber near spool centre.
-
-    The band is applied to the spool's position relative to the lands,
-    ``x_s + offset`` (the paper writes ``|x_s|``; with offset = 0 they agree).
-    """
-    q = K_leak_in * (p_S - p_chamber) - K_leak_out * (p_chamber - p_T)
-    return q if abs(x_s + offset) < leak_band else 0.0
+def null_leakage(p_chamber, p_S, p_T, K_leak_in, K_leak_out):
+    """Eqs. (13)-(14): laminar null leakage [m^3/s] into a chamber, from the supply and out to
+    the tank. It flows while the spool is near centre, ``|x_s + offset| < leak_band`` (the paper
+    writes ``|x_s|``; with offset = 0 they agree): :func:`valve_flows` applies the band."""
+    return K_leak_in * (p_S - p_chamber) - K_leak_out * (p_chamber - p_T)
 
 
 @jit
 def valve_flows(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
                 K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, R_supply, Q_sat):
-    """Eqs. (10)-(11): valve flows (Q_A, Q_B) [m^3/s] into chambers A and B."""
-    Q_A, Q_B, _, _ = valve_flows_conductances(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
-                                              K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap,
-                                              R_supply, Q_sat)
-    return Q_A, Q_B
-
-
-@jit
-def valve_flows_conductances(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
-                             K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, R_supply, Q_sat):
-    """(Q_A, Q_B, G_A, G_B): the valve flows of :func:`valve_flows` and, per chamber, the sum of
-    the chord conductances [m^3/(s Pa)] of the valve paths that join it to the supply and the
-    tank (the open metering edges, :func:`orifice_flow_conductance`, and the laminar null
-    leakage)."""
+    """Eqs. (10)-(14): (Q_A, Q_B, G_A, G_B), the valve flows [m^3/s] into chambers A and B and,
+    per chamber, the sum of the chord conductances q / dp [m^3/(s Pa)] of the valve paths that
+    join it to the supply and the tank (the open metering edges, :func:`orifice_flow_conductance`,
+    and the laminar null leakage, :func:`null_leakage`)."""
     a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap)
     q_PA, g_PA = orifice_flow_conductance(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat)
     q_AT, g_AT = orifice_flow_conductance(K_AT, a_PB_AT, p_A - p_T, 0.0, Q_sat)
     q_PB, g_PB = orifice_flow_conductance(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat)
     q_BT, g_BT = orifice_flow_conductance(K_BT, a_PA_BT, p_B - p_T, 0.0, Q_sat)
-    Q_A = q_PA - q_AT
-    Q_B = q_PB - q_BT
-    G_A = g_PA + g_AT
-    G_B = g_PB + g_BT
-    if abs(x_s + offset) < leak_band:  # Eqs. (13)-(14)
-        Q_A += null_leakage(x_s, offset, p_A, p_S, p_T, K_leak_PA, K_leak_AT, leak_band)
-        Q_B += null_leakage(x_s, offset, p_B, p_S, p_T, K_leak_PB, K_leak_BT, leak_band)
+    Q_A, Q_B = q_PA - q_AT, q_PB - q_BT
+    G_A, G_B = g_PA + g_AT, g_PB + g_BT
+    if abs(x_s + offset) < leak_band:
+        Q_A += null_leakage(p_A, p_S, p_T, K_leak_PA, K_leak_AT)
+        Q_B += null_leakage(p_B, p_S, p_T, K_leak_PB, K_leak_BT)
         G_A += K_leak_PA + K_leak_AT
         G_B += K_leak_PB + K_leak_BT
     return Q_A, Q_B, G_A, G_B
 
 
 @jit
-def leak_conductance(q, dp):
-    """Chord conductance q / dp [m^3/(s Pa)] of a turbulent leak that passes ``q`` at the pressure
-    difference ``dp`` (Eqs. (41)-(43)), taken at |dp| >= DP_CONDUCTANCE_MIN: from the flow already
-    computed, with a division and no square root."""
-    return abs(q) / max(abs(dp), DP_CONDUCTANCE_MIN)
+def leak_conductance(q, dp, K):
+    """Chord conductance q / dp [m^3/(s Pa)] of a turbulent leak ``q = K ssqrt(dp)`` (Eqs. (41)-(43))
+    that passes ``q`` at ``dp``: from the flow already computed, a division and no square root;
+    below |dp| = DP_CONDUCTANCE_MIN the chord there, ``K / sqrt(DP_CONDUCTANCE_MIN)``."""
+    if abs(dp) < DP_CONDUCTANCE_MIN:
+        return K / math.sqrt(DP_CONDUCTANCE_MIN)
+    return abs(q) / abs(dp)
 
 
 @jit
