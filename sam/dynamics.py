@@ -131,12 +131,12 @@ def rhs(s, u, p, d, ds):
 
 @jit_inline
 def rates(s, u, p, d, ds):
-    """Eq. (19) as :func:`rhs` writes it into ``ds``, and returns each chamber's pressure
-    stiffness (k_A, k_B) [1/s]: the rate at which its pressure relaxes onto the pressures it is
-    joined to, c G, with c = d(dp/dt)/dQ its inverse capacitance (Eqs. (8)-(9)) and G the sum of
-    the chord conductances q / dp of its paths to the supply and the tank (the open metering
-    edges, the null leakage, the external leaks); a path to the other chamber (the internal leak,
-    the bypass) counts at (c_A + c_B) G, the rate of the pressure difference it relaxes."""
+    """Eq. (19) as :func:`rhs` writes it into ``ds``, and returns what the semi-implicit pressure
+    step needs (:func:`stiff_pressure_rates`): (c_A, c_B) [Pa/m^3], each chamber's inverse
+    capacitance d(dp/dt)/dQ (Eqs. (8)-(9)); (G_A, G_B) [m^3/(s Pa)], the sum of the chord
+    conductances q / dp of its paths to the supply and the tank (the open metering edges, the
+    null leakage, the external leak); and G_AB, that of the paths between the chambers (the
+    internal leak, the bypass)."""
     p_A, p_B, x_s, dx_s, x, v, z = s[0], s[1], s[2], s[3], s[4], s[5], s[6]
     A_A, A_B = d[D.A_A], d[D.A_B]
 
@@ -190,10 +190,37 @@ def rates(s, u, p, d, ds):
     ds[4] = v
     ds[5] = (p_A * A_A - p_B * A_B - F_mu - F_ext) * inv_m_red
     ds[6] = dz
-    # a path between the chambers relaxes their DIFFERENCE, at (c_A + c_B) G: counted so, the
-    # step lands the difference on zero instead of swapping the two pressures
-    c_AB = (c_A + c_B) * G_AB
-    return c_A * G_A + c_AB, c_B * G_B + c_AB
+    return c_A, c_B, G_A, G_B, G_AB
+
+
+@jit_inline
+def _stiff_share(hG):
+    """w = max(0, 1 - 1/hG) of a path whose pressure relaxes at hG per step: the least weight
+    of its implicit part that keeps a turbulent path's step monotone (for ``q = k sqrt(dp)``
+    the step multiplies dp by 1 - hG / (1 + w hG) >= 0; at w = 1 - 1/hG it lands, 0). It is 0
+    up to hG = 1, where forward Euler cannot overshoot, and grows continuously from there."""
+    return 1.0 - 1.0 / hG if hG > 1.0 else 0.0
+
+
+@jit_inline
+def stiff_pressure_rates(r_A, r_B, h_A, h_B, a, b, g):
+    """The chamber pressure rates [Pa/s] of the semi-implicit step: each path's flow written as
+    ``G_i (p_i - p)`` with G_i at the step's start, the weighted share (a, b to the rails of A
+    and B, g between them [m^3/(s Pa)]; :func:`_stiff_share`) taken at the step's END, the
+    rest explicit: the 2 x 2 linear system
+
+        (1 + h_A (a + g)) dA - h_A g dB = dt r_A
+        -h_B g dA + (1 + h_B (b + g)) dB = dt r_B
+
+    (h = dt c [Pa s/m^3]; r_A, r_B the forward-Euler rates) solved for the increments dA, dB,
+    returned as rates dA / dt, dB / dt. The path between the chambers moves volume from one to
+    the other, so the step conserves what it moves (dA / h_A + dB / h_B is the same as forward
+    Euler's but for the rail paths' share): the common pressure still follows the piston's
+    displacement flows while the difference lands on its balance."""
+    m_A = 1.0 + h_A * (a + g)
+    m_B = 1.0 + h_B * (b + g)
+    det = m_A * m_B - h_A * h_B * g * g
+    return (r_A * m_B + h_A * g * r_B) / det, (r_B * m_A + h_B * g * r_A) / det
 
 
 @jit_inline
@@ -206,13 +233,14 @@ def euler_step(s, u, p, d, dt, ds):
 
     Stiff chambers: a chamber joined through an open metering edge to the tank or the supply
     with little flow (the piston on an end stop or stalled, the valve open) relaxes onto that
-    rail at a rate k = c G (:func:`rates`) that grows without bound as the edge's pressure
-    drop vanishes (the slope of ``sqrt(dp)``). Forward Euler with dt k > 1 steps across the
-    rail, and at 1 ms it settles into a period-2 oscillation around it, of amplitude
+    rail at a rate c G (:func:`rates`) that grows without bound as the edge's pressure drop
+    vanishes (the slope of ``sqrt(dp)``). Forward Euler with dt c G > 1 steps across the rail,
+    and at 1 ms it settles into a period-2 oscillation around it, of amplitude
     (dt c K_v x_s)^2 / 4: 11 kPa in p_A on the retracted stop at 2.4 V (docs/model.md,
-    "Numerics"). Where dt k > 1 the pressure's step is divided by dt k: the backward-Euler
-    step of a path ``q = G (p_rail - p)`` linearised by its chord conductance, which lands on
-    the rail instead of crossing it. Elsewhere (every transient and stroke measured) the step
+    "Numerics"). A path between the chambers (a leak across the piston at a small pressure
+    difference) does the same to their difference. Where a path is stiff, the pressures take
+    the linearised backward-Euler step of :func:`stiff_pressure_rates`, which lands on the rail
+    (or the difference on its balance) instead of crossing it; elsewhere the step
     is forward Euler's, unchanged. Afterwards the state is kept physical:
 
     * pressures are clamped at the cavitation floor :data:`P_CAVITATION`
@@ -222,9 +250,14 @@ def euler_step(s, u, p, d, dt, ds):
 
     Returns the flag word (0 when nothing was clamped but the end stops).
     """
-    k_A, k_B = rates(s, u, p, d, ds)
-    ds[0] /= max(1.0, dt * k_A)
-    ds[1] /= max(1.0, dt * k_B)
+    c_A, c_B, G_A, G_B, G_AB = rates(s, u, p, d, ds)
+    h_A, h_B = dt * c_A, dt * c_B
+    # the stiff share of each path (0 where forward Euler cannot overshoot: the common case)
+    a = _stiff_share(h_A * G_A) * G_A
+    b = _stiff_share(h_B * G_B) * G_B
+    g = _stiff_share((h_A + h_B) * G_AB) * G_AB
+    if a > 0.0 or b > 0.0 or g > 0.0:
+        ds[0], ds[1] = stiff_pressure_rates(ds[0], ds[1], h_A, h_B, a, b, g)
     for j in range(N_STATES):
         s[j] += dt * ds[j]
     flags = 0

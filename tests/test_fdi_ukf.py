@@ -418,7 +418,7 @@ def test_the_position_on_an_end_stop_does_not_push_the_leaks(plant_vector):
     retracted stop by the load while the valve cycles +-2.5 V, from a linear sensor: with every
     state learning from the position there, the truncated sigma points' one-sided position
     innovation drives the K_extA estimate up (a smaller p_A lifts less) to 0.14-0.19 L/min; with
-    only the load learning from it, 0.10-0.15 L/min on every machine (the rest is pressure).
+    only the load learning from it, lower on every machine, 0.08-0.15 L/min (the rest is pressure).
     (Session 20 measured 0.13-0.18 and 0.07-0.12 with the model's forward-Euler chatter of the
     pinned pressures, fixed in session 21.)"""
     from fdi.montecarlo import draw_truth
