@@ -306,7 +306,7 @@ def test_a_chamber_pinned_to_the_tank_settles_on_it(u, B_eff, m_L, Q_N, effect, 
     p_A, p_B = _last_seconds(res, "p_A", 1.0), _last_seconds(res, "p_B", 1.0)
     # monotone onto the rails, never across them (a soft chamber, much air or a strong droop,
     # may still be on its way: physics, a time constant of seconds)
-    tol = 0.5  # Pa: on the rail the step rests within ~DP_CONDUCTANCE_MIN / 4
+    tol = 1.0  # Pa: on the rail the step wiggles by DP_CONDUCTANCE_MIN / 4 about it
     assert np.all(np.diff(p_A) <= tol) and np.all(p_A >= p[P.p_T] - tol)
     assert np.all(np.diff(p_B) >= -tol) and np.all(p_B <= p[P.p_S] + tol)
     if effect == "none":  # and there
