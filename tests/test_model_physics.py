@@ -283,8 +283,8 @@ def _last_seconds(res, name, seconds):
 
 @settings(max_examples=40, deadline=None)
 @given(u=st.floats(1.0, 10.0), B_eff=st.floats(3e8, 1.2e9), m_L=st.floats(0.0, 800.0),
-       Q_N=st.floats(15 * LPM, 35 * LPM), effect=st.sampled_from(["none", "R_supply", "Q_sat", "air_fraction", "C_hose"]),
-       strength=st.floats(0.0, 1.0))
+       Q_N=st.floats(15 * LPM, 35 * LPM),
+       effect=st.sampled_from(["none", "R_supply", "Q_sat", "air_fraction", "C_hose"]), strength=st.floats(0.0, 1.0))
 def test_a_chamber_pinned_to_the_tank_settles_on_it(u, B_eff, m_L, Q_N, effect, strength):
     """On the retracted end stop with the valve open to retract, chamber A drains through the
     open A->T edge and nothing else flows: p_A settles on the tank pressure and B on the supply
