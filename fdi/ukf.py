@@ -995,8 +995,8 @@ _CONSTRAINTS = {"project": 0, "truncate": 1, "project_joint": 2}
 
 
 #: s: the largest Euler step of the model the filter takes (stable for the SAM up to here;
-#: sam.dynamics.euler_step). A recording sampled more coarsely is propagated with :func:`model_substeps` steps per
-#: sample, its input held over the sample.
+#: sam.dynamics.euler_step). A recording sampled more coarsely is propagated with
+#: :func:`model_substeps` steps per sample, its input held over the sample.
 MAX_MODEL_DT = 1e-3
 
 

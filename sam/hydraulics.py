@@ -123,7 +123,10 @@ def valve_flows(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
 def leak_conductance(q, dp, K):
     """Chord conductance q / dp [m^3/(s Pa)] of a turbulent leak ``q = K ssqrt(dp)`` (Eqs. (41)-(43))
     that passes ``q`` at ``dp``: from the flow already computed, a division and no square root;
-    below |dp| = DP_CONDUCTANCE_MIN the chord there, ``K / sqrt(DP_CONDUCTANCE_MIN)``."""
+    below |dp| = DP_CONDUCTANCE_MIN the chord there, ``K / sqrt(DP_CONDUCTANCE_MIN)``; 0 without
+    the leak, with no division (a healthy simulation's every step)."""
+    if K == 0.0:
+        return 0.0
     if abs(dp) < DP_CONDUCTANCE_MIN:
         return K / math.sqrt(DP_CONDUCTANCE_MIN)
     return abs(q) / abs(dp)
