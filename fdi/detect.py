@@ -137,6 +137,59 @@ def _is_number(x) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool)
 
 
+def _is_positive(x) -> bool:
+    """A finite number > 0 (TOML reads nan and inf as floats)."""
+    return _is_number(x) and 0.0 < x < math.inf
+
+
+def _is_regime_list(test):
+    """A check of a list with one entry per regime (:data:`REGIMES`), each passing test."""
+    return lambda v: isinstance(v, list) and len(v) == len(REGIMES) and all(map(test, v))
+
+
+#: the per-hypothesis and per-parameter tables of a thresholds file: (the keys it must have,
+#: the check of each value, what a valid value is). glr_h may be left out (the CUSUM detector).
+TABLE_FIELDS = {
+    "h": (tuple(HYPOTHESES), _is_positive, "a CUSUM threshold in sigma s (> 0)"),
+    "sigma": (tuple(PARAMS), _is_regime_list(_is_positive),
+              f"a list of {len(REGIMES)} healthy spreads (> 0, SI), one per regime {REGIMES}"),
+    "votes": (tuple(PARAMS), _is_regime_list(lambda b: isinstance(b, bool)),
+              f"a list of {len(REGIMES)} true/false, one per regime {REGIMES}"),
+    "nuisance_sd": (tuple(PARAMS), _is_positive, "a spread (> 0, SI)"),
+    "glr_h": (tuple(PARAMS), _is_positive, "an evidence threshold in nats (> 0)"),
+}
+#: the other numeric fields: finite and >= 0
+NONNEGATIVE_FIELDS = ("warmup_s", "baseline_s", "band_V", "transient_s", "pin_margin_Pa", "nis_limit",
+                      "nis_hold_s", "false_alarm_level", "false_isolation_level", "glr_start_s", "glr_window_s")
+
+
+def _check_tables(data: dict) -> None:
+    """Raise ValueError naming the field, the key and the fault when a table or a numeric
+    field of a thresholds file is not what :class:`Thresholds` needs."""
+    for name, (keys, ok, what) in TABLE_FIELDS.items():
+        table = data.get(name)
+        if table is None:
+            continue
+        if not isinstance(table, dict):
+            raise ValueError(f"{name!r} = {table!r} is not a table with the keys {', '.join(keys)}")
+        for key, value in table.items():
+            if key not in keys:
+                raise ValueError(f"{name!r}: unknown key {key!r}{did_you_mean(key, keys)}")
+            if not ok(value):
+                raise ValueError(f"'{name}.{key}' = {value!r} is not {what}")
+        missing = [k for k in keys if k not in table]
+        if missing and name != "glr_h":
+            raise ValueError(f"{name!r} has no value for {', '.join(map(repr, missing))}")
+    for name in NONNEGATIVE_FIELDS:
+        v = data.get(name)
+        if v is not None and not (_is_number(v) and 0.0 <= v < math.inf):
+            raise ValueError(f"{name!r} = {v!r} is not a finite number >= 0")
+    pairs = data.get("confusable", [])
+    if not (isinstance(pairs, list) and all(isinstance(p, list) and len(p) == 2 and set(p) <= set(HYPOTHESES)
+                                            for p in pairs)):
+        raise ValueError(f"'confusable' = {pairs!r} is not a list of pairs of {', '.join(HYPOTHESES)}")
+
+
 @dataclass(frozen=True)
 class Thresholds:
     """Decision thresholds of the change test (see docs/fdi.md).
@@ -267,6 +320,7 @@ class Thresholds:
         for key, allowed in CHOICES.items():
             if key in data and data[key] not in allowed:
                 raise ValueError(f"{key!r} = {data[key]!r} is not one of {', '.join(map(repr, allowed))}")
+        _check_tables(data)
         for key, (lo, hi, what) in RANGE_FIELDS.items():
             v = data.get(key)
             if v is not None and not (_is_number(v) and lo <= v <= hi):

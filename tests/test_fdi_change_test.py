@@ -119,6 +119,36 @@ def test_thresholds_file_memory_is_validated(tmp_path):
             Thresholds.load(f)
 
 
+def test_thresholds_file_tables_are_validated(tmp_path):
+    """The per-hypothesis tables of a thresholds file: a typo in a key, a value that is not a
+    positive finite number, a list of the wrong length or a missing hypothesis is named, with
+    its table and key, instead of failing later inside the detector (or, for nan, silently)."""
+    from fdi.detect import SHIPPED_THRESHOLDS
+
+    text = SHIPPED_THRESHOLDS.read_text()
+    h_int = next(line for line in text.splitlines() if line.startswith('"K_int" = 0'))
+    sigma_int = next(line for line in text.splitlines() if line.startswith('"K_int" = ['))
+    h_minus = next(line for line in text.splitlines() if line.startswith('"offset-" ='))
+    cases = (
+        (h_int, h_int.replace('"K_int"', '"K_itn"'), r"'h': unknown key 'K_itn' \(did you mean 'K_int'\?\)"),
+        (h_int, '"K_int" = "abc"', r"'h.K_int' = 'abc' is not a CUSUM threshold"),
+        (h_int, '"K_int" = nan', r"'h.K_int' = nan is not"),
+        (h_int, '"K_int" = -0.5', r"'h.K_int' = -0.5 is not"),
+        (h_minus, "", r"'h' has no value for 'offset-'"),
+        (sigma_int, '"K_int" = [1.0, 2.0]', r"'sigma.K_int' = \[1.0, 2.0\] is not a list of 5"),
+        ("band_V = 0.3", "band_V = -inf", r"'band_V' = -inf is not a finite number"),
+        ('["K_extA", "K_extB"]', '["K_extA", "K_extC"]', r"'confusable'"),
+    )
+    f = tmp_path / "th.toml"
+    for old, new, message in cases:
+        assert old in text
+        f.write_text(text.replace(old, new, 1))
+        with pytest.raises(ValueError, match=message):
+            Thresholds.load(f)
+    for shipped in SHIPPED_THRESHOLDS.parent.glob("thresholds*.toml"):
+        Thresholds.load(shipped)
+
+
 def test_the_cusum_memory_is_reported():
     """describe() and the diagnosis name the CUSUM the thresholds were derived for."""
     from sam import load_plant
