@@ -194,6 +194,19 @@ def rates(s, u, p, d, ds):
 
 
 @jit_inline
+def stop_travel_velocity(x, v, dt, x_end):
+    """The mean velocity [m/s] of a step of dt [s] from x [m] at v [m/s] that an end stop cuts
+    short: the travel to the stop over dt, 0 from on (or beyond) it, v where the step does not
+    reach it. The displacement flows A v of Eqs. (8)-(9) must use it, not v: the stop is rigid
+    and inelastic, so a chamber is compressed only by the distance the piston really moves."""
+    if v < 0.0 and x + dt * v < 0.0:
+        return -max(x, 0.0) / dt
+    if v > 0.0 and x + dt * v > x_end:
+        return max(x_end - x, 0.0) / dt
+    return v
+
+
+@jit_inline
 def _stiff_share(hG):
     """w = max(0, 1 - 1/hG) of a path whose pressure relaxes at hG per step: the least weight
     of its implicit part that keeps a turbulent path's step monotone (for ``q = k sqrt(dp)``
@@ -251,6 +264,11 @@ def euler_step(s, u, p, d, dt, ds):
     Returns the flag word (0 when nothing was clamped but the end stops).
     """
     c_A, c_B, G_A, G_B, G_AB = rates(s, u, p, d, ds)
+    # a step that reaches an end stop displaces oil only over the travel to it
+    v_disp = stop_travel_velocity(s[4], s[5], dt, d[D.x_end])
+    if v_disp != s[5]:
+        ds[0] += c_A * d[D.A_A] * (s[5] - v_disp)
+        ds[1] -= c_B * d[D.A_B] * (s[5] - v_disp)
     h_A, h_B = dt * c_A, dt * c_B
     # the stiff share of each path (0 where forward Euler cannot overshoot: the common case)
     a = _stiff_share(h_A * G_A) * G_A

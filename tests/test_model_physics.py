@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
@@ -357,3 +357,30 @@ def test_step_is_forward_euler_where_no_chamber_is_stiff(x, v, x_s, p_A, p_B, u)
     rhs(s, u, p, d, f)
     new, _ = sam.step_batch(s[None], np.array([u]), p[None], DT)
     assert np.array_equal(new[0], s + DT * f)
+
+
+@settings(max_examples=60, deadline=None)
+@given(gap=st.floats(0.0, 30e-6), speed=st.floats(0.0, 0.1), extended=st.booleans(),
+       p_A=st.floats(1e6, 9e6), p_B=st.floats(1e6, 9e6))
+@example(gap=0.0, speed=0.05, extended=False, p_A=5e6, p_B=5e6)  # on the stop, pushing into it
+def test_a_step_that_reaches_an_end_stop_displaces_only_its_travel(gap, speed, extended, p_A, p_B):
+    """Volume is conserved at an end stop: with the valve closed and no leak, the chambers'
+    pressures change by exactly the volume the piston sweeps, A * (travel), where the travel is
+    v dt, or the gap to the stop when the step reaches it (0 for a piston already on the stop
+    pushing into it: a filter's sigma point). Before, the step compressed a chamber by A v dt even
+    where the stop cut the motion short (docs/model.md, "Numerics"), and the filter's offset
+    absorbed the phantom flow at each lift-off."""
+    from sam.hydraulics import inverse_capacitance
+
+    p = PLANT.vector()
+    for notch in ("PA", "AT", "PB", "BT"):
+        p[P[f"K_leak_{notch}"]] = 0.0  # a closed valve passes nothing
+    d = derived(p)
+    x0, v, sign = (d[D.x_end] - gap, speed, -1.0) if extended else (gap, -speed, 1.0)
+    travel = min(gap, speed * DT)
+    s = np.array([p_A, p_B, 0.0, 0.0, x0, v, 0.0])
+    new, _ = sam.step_batch(s[None], np.array([0.0]), p[None], DT)
+    c = [inverse_capacitance(V, pc, p[P.B_eff], p[P.air_fraction], p[P.C_hose])
+         for V, pc in ((p[P.V_0A] + d[D.A_A] * x0, p_A), (p[P.V_0B] + d[D.A_B] * (p[P.x_max] - x0), p_B))]
+    assert new[0, 0] - p_A == pytest.approx(sign * c[0] * d[D.A_A] * travel, rel=1e-9, abs=1e-6)
+    assert new[0, 1] - p_B == pytest.approx(-sign * c[1] * d[D.A_B] * travel, rel=1e-9, abs=1e-6)
