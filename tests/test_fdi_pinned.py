@@ -15,7 +15,7 @@ from sam import P, load_plant
 from fdi.detect import (MIN_BASELINE_S, PARAMS, Thresholds, baseline_window, diagnose, held, held_on_stop,
                         pinned, resting_on_stop)
 from fdi.synth import simulate_runs
-from fdi.ukf import POS_X, FilterInput, FilterOutput, run_filter
+from fdi.ukf import I_KEXTA, POS_X, FilterInput, FilterOutput, leak_lpm, run_filter
 
 DT = 1e-3
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
@@ -80,21 +80,26 @@ def test_the_long_stall_still_needs_the_hold():
     (46.7 s of its 60 s): with the shipped thresholds it is healthy; with nothing ever pinned
     an offset test alarms (measured 19-24 s), the estimate that creeps where the pinned pressures
     hide it, with or without the CUSUM's memory. (Since session 15 the confirmation bank, whose
-    notch flows may move, withdraws those alarms too.) K_extA alarmed at 39-40 s as well until
-    session 21: its creep came from the model's forward-Euler chatter of the pinned chamber
-    pressures (sam.dynamics.euler_step), and it is gone with it."""
+    notch flows may move, withdraws those alarms too.) K_extA crept to 0.43 L/min there and
+    alarmed at 39-40 s until session 21: its creep came from the model's forward-Euler chatter of
+    the pinned chamber pressures (sam.dynamics.euler_step), and it is gone with it: after the
+    0.5 s warm-up its estimate stays below the 0.25 L/min target size (session 21: at most 0.15
+    L/min; session 22, with volume conserved at the stops, 0.23 L/min at 54 s; its more sensitive
+    K_extA test also triggers at 17 s when nothing is held, withdrawn by the bank)."""
     from sam.scenario import load_scenario, run_scenario
     from fdi.replay import replay
 
     root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
     rec = run_scenario(load_scenario(root / "healthy_cycle_60s_800kg.toml"))
     th = Thresholds.shipped()
-    assert replay(rec, load_plant(), thresholds=th)[3].status == "healthy"
+    out, _, _, diagnosis, _ = replay(rec, load_plant(), thresholds=th)
+    assert diagnosis.status == "healthy"
+    assert leak_lpm(out.mean[0, out.t >= th.warmup_s, I_KEXTA]).max() < 0.25
     for memory in (th.memory_s, None):
         # the long-stroke rule off too: this is about what the pinned hold alone does
         unheld = replay(rec, load_plant(), thresholds=replace(th, pin_margin_Pa=NO_PINNING, memory_s=memory,
                                                               long_stroke_s=None))[3]
-        assert any(k.startswith("offset") for k in unheld.alarms) and "K_extA" not in unheld.alarms
+        assert any(k.startswith("offset") for k in unheld.alarms)
 
 
 def test_fed_chamber_leak_is_still_seen_in_a_stall():

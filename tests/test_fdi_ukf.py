@@ -415,12 +415,14 @@ def test_on_an_end_stop_only_the_load_learns_from_the_position(plant_vector):
 
 def test_the_position_on_an_end_stop_does_not_push_the_leaks(plant_vector):
     """Eight overloaded machines (800 kg, nuisance parameters drawn as in the tune) held on the
-    retracted stop by the load while the valve cycles +-2.5 V, from a linear sensor: with every
-    state learning from the position there, the truncated sigma points' one-sided position
-    innovation drives the K_extA estimate up (a smaller p_A lifts less) to 0.14-0.19 L/min; with
-    only the load learning from it, lower on every machine, 0.08-0.15 L/min (the rest is pressure).
-    (Session 20 measured 0.13-0.18 and 0.07-0.12 with the model's forward-Euler chatter of the
-    pinned pressures, fixed in session 21.)"""
+    retracted stop by the load while the valve cycles +-2.5 V, from a linear sensor. Until session
+    22, with every state learning from the position there, the one-sided position innovation of
+    the sigma points the stop cut short drove the K_extA estimate to 0.14-0.19 L/min (a smaller p_A
+    lifts less), and with only the load learning from it (``stop_learners``, session 20) to
+    0.08-0.15 L/min. Most of that push was the model's, not the stop's: a sigma point that reached
+    the stop within a step compressed chamber A by the whole step's displacement
+    (sam.dynamics.stop_travel_velocity). Since session 22 both stay below 0.16 L/min (0.11-0.15;
+    the rest is pressure), the restricted gain no higher on average."""
     from fdi.montecarlo import draw_truth
     B, T = 8, 10001
     true = draw_truth(load_plant(), B, np.random.default_rng(7))
@@ -431,6 +433,5 @@ def test_the_position_on_an_end_stop_does_not_push_the_leaks(plant_vector):
     assert runs.truth["x"].max() == 0.0  # the load is never lifted
     peak = {learners: ukf.leak_lpm(run_filter(runs.inp, FilterConfig(stop_learners=learners)).mean[:, 2000:, ukf.I_KEXTA]).max(axis=1)
             for learners in (("F_d", "c_m_L"), None)}
-    assert np.all(peak[("F_d", "c_m_L")] < peak[None])
-    assert peak[("F_d", "c_m_L")].mean() < 0.8 * peak[None].mean()
-    assert peak[None].min() > 0.13 and peak[("F_d", "c_m_L")].max() < 0.16
+    assert peak[("F_d", "c_m_L")].mean() <= peak[None].mean()
+    assert max(peak[None].max(), peak[("F_d", "c_m_L")].max()) < 0.16
