@@ -259,7 +259,9 @@ def euler_step(s, u, p, d, dt, ds):
     * pressures are clamped at the cavitation floor :data:`P_CAVITATION`
       (flagged with :data:`FLAG_CAVITATION`, since Eqs. (8)-(9) no longer hold);
     * the piston stops at its end stops, x in [0, stroke_end(p)], where the
-      velocity into the stop is zeroed (an inelastic stop).
+      velocity into the stop is zeroed (an inelastic stop); a step that reaches a stop
+      compresses the chambers only by the travel to it (:func:`stop_travel_velocity`), so
+      volume is conserved there too.
 
     Returns the flag word (0 when nothing was clamped but the end stops).
     """
