@@ -129,6 +129,17 @@ RANGE_FIELDS = {
     "sample_dt_s": (1e-6, 0.5, "a sampling step in seconds (1e-6 to 0.5)"),
     "confirm_nats": (0.0, 1e6, "an evidence in nats (>= 0; 0: every alarm stands)"),
     "trigger_level": (1e-6, 1.0, "a rate of alarms per healthy run (0-1; leave it out for h at false_alarm_level)"),
+    "false_alarm_level": (1e-9, 1.0, "a rate of false alarms per healthy run (0-1)"),
+    "false_isolation_level": (1e-9, 1.0, "a rate of wrong isolations (0-1)"),
+    "warmup_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
+    "baseline_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
+    "transient_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
+    "nis_hold_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
+    "glr_start_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
+    "glr_window_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
+    "band_V": (0.0, 1e3, "a finite number >= 0 (an input band in volts)"),
+    "nis_limit": (0.0, 1e12, "a finite number >= 0 (a weighted NIS)"),
+    "pin_margin_Pa": (-1e12, 1e12, "a pressure margin in Pa (finite; below 0 nothing is pinned)"),
 }
 
 
@@ -158,14 +169,11 @@ TABLE_FIELDS = {
     "nuisance_sd": (tuple(PARAMS), _is_positive, "a spread (> 0, SI)"),
     "glr_h": (tuple(PARAMS), _is_positive, "an evidence threshold in nats (> 0)"),
 }
-#: the other numeric fields: finite and >= 0
-NONNEGATIVE_FIELDS = ("warmup_s", "baseline_s", "band_V", "transient_s", "pin_margin_Pa", "nis_limit",
-                      "nis_hold_s", "false_alarm_level", "false_isolation_level", "glr_start_s", "glr_window_s")
 
 
 def _check_tables(data: dict) -> None:
-    """Raise ValueError naming the field, the key and the fault when a table or a numeric
-    field of a thresholds file is not what :class:`Thresholds` needs."""
+    """Raise ValueError naming the table, the key and the fault when a table of a thresholds
+    file is not what :class:`Thresholds` needs (its numeric fields: :data:`RANGE_FIELDS`)."""
     for name, (keys, ok, what) in TABLE_FIELDS.items():
         table = data.get(name)
         if table is None:
@@ -180,10 +188,6 @@ def _check_tables(data: dict) -> None:
         missing = [k for k in keys if k not in table]
         if missing and name != "glr_h":
             raise ValueError(f"{name!r} has no value for {', '.join(map(repr, missing))}")
-    for name in NONNEGATIVE_FIELDS:
-        v = data.get(name)
-        if v is not None and not (_is_number(v) and 0.0 <= v < math.inf):
-            raise ValueError(f"{name!r} = {v!r} is not a finite number >= 0")
     pairs = data.get("confusable", [])
     if not (isinstance(pairs, list) and all(isinstance(p, list) and len(p) == 2 and set(p) <= set(HYPOTHESES)
                                             for p in pairs)):
