@@ -295,21 +295,32 @@ _jit_inline = numba.njit(cache=True, inline="always", error_model="numpy")
 @_jit_inline
 def _cholesky(A, L, n):
     """Lower Cholesky factor of the leading n x n block of A into L's; returns False if it is
-    not positive definite. (Row by row; each row's off-diagonal entries are multiplied by the
-    reciprocal of the pivots, one division per pivot instead of one per entry.)"""
-    for i in range(n):
-        for j in range(i + 1):
-            s = A[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                if not s > 0.0:
-                    return False
-                L[i, i] = math.sqrt(s)
-            else:
-                L[i, j] = s * (1.0 / L[j, j])
-        for j in range(i + 1, n):
-            L[i, j] = 0.0
+    not positive definite (:func:`_chol_columns` of all n columns)."""
+    return _chol_columns(A, 1.0, L, n, n)
+
+
+@_jit_inline
+def _chol_columns(A, c, L, n, ncol):
+    """The first ncol columns of the lower Cholesky factor of c * A[:n, :n] into L[:n, :ncol]
+    (the entries above the diagonal set to 0). Left-looking, column by column: column k needs
+    only the columns before it, and its entries below the pivot are multiplied by the pivot's
+    reciprocal, one division per column (a division per entry sat on the loop's critical path).
+    False if the leading ncol x ncol block is not positive definite."""
+    for k in range(ncol):
+        s = c * A[k, k]
+        for q in range(k):
+            s -= L[k, q] * L[k, q]
+        if not s > 0.0:
+            return False
+        L[k, k] = math.sqrt(s)
+        inv = 1.0 / L[k, k]
+        for j in range(k):
+            L[j, k] = 0.0
+        for j in range(k + 1, n):
+            s = c * A[j, k]
+            for q in range(k):
+                s -= L[j, q] * L[k, q]
+            L[j, k] = s * inv
     return True
 
 
@@ -336,6 +347,8 @@ def _robust_sqrt(P, c, jitter, L, A, act, na):
     inner loop allocates nothing)."""
     n = na
     if na == P.shape[0]:
+        if _chol_columns(P, c, L, n, n):  # the common case: no copy of c P
+            return 0
         for i in range(n):
             for j in range(n):
                 A[i, j] = c * P[i, j]
@@ -343,8 +356,8 @@ def _robust_sqrt(P, c, jitter, L, A, act, na):
         for i in range(n):
             for j in range(n):
                 A[i, j] = c * P[act[i], act[j]]
-    if _cholesky(A, L, n):
-        return 0
+        if _cholesky(A, L, n):
+            return 0
     scale = 0.0
     for i in range(n):
         scale = max(scale, abs(A[i, i]))
@@ -418,25 +431,9 @@ def _measure(sig, pos_kind, L1, L2, L3, out):
 @_jit_inline
 def _chol_leading_cols(P, c, Lc):
     """The first ncol = Lc.shape[1] columns of the lower Cholesky factor of c*P (n, n) into
-    Lc (n, ncol), the same sums as :func:`_cholesky` (left-looking: column k needs only the
-    columns before it). False if the leading ncol x ncol block is not positive definite."""
-    n, ncol = Lc.shape
-    for k in range(ncol):
-        s = c * P[k, k]
-        for q in range(k):
-            s -= Lc[k, q] * Lc[k, q]
-        if not s > 0.0:
-            return False
-        Lc[k, k] = math.sqrt(s)
-        inv = 1.0 / Lc[k, k]
-        for j in range(k):
-            Lc[j, k] = 0.0
-        for j in range(k + 1, n):
-            s = c * P[j, k]
-            for q in range(k):
-                s -= Lc[j, q] * Lc[k, q]
-            Lc[j, k] = s * inv
-    return True
+    Lc (n, ncol) (:func:`_chol_columns`). False if the leading ncol x ncol block is not
+    positive definite."""
+    return _chol_columns(P, c, Lc, Lc.shape[0], Lc.shape[1])
 
 
 @_jit_inline
@@ -817,7 +814,8 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                             acc = 0.0
                             for c in range(mv):
                                 acc += Kg[j, c] * Pxz[l, c]
-                                if restricted:
+                            if restricted:
+                                for c in range(mv):
                                     acc += Pxz[j, c] * Kg[l, c]
                                     for e in range(mv):
                                         acc -= Kg[j, c] * Sm[c, e] * Kg[l, e]

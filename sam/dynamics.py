@@ -79,6 +79,11 @@ DERIVE_INPUTS = frozenset({
     "D_piston", "D_rod", "x_max", "alpha", "theta_max", "L_1", "L_2", "L_3",
     "m_B", "m_L", "m_R", "L_B", "L", "sigma_0",
 })
+#: Those of them that only :func:`derive_geometry` reads (its trigonometry).
+GEOMETRY_INPUTS = frozenset({"x_max", "alpha", "theta_max", "L_1", "L_2", "L_3"})
+#: Their columns of a parameter vector, in the order of P: the geometry's, and the others'.
+GEOMETRY_COLS = np.array(sorted(int(P[name]) for name in GEOMETRY_INPUTS), dtype=np.int64)
+MACHINE_COLS = np.array(sorted(int(P[name]) for name in DERIVE_INPUTS - GEOMETRY_INPUTS), dtype=np.int64)
 
 
 @jit
@@ -102,14 +107,28 @@ def derive(p, d):
     They hold for a whole run (or until a parameter they depend on changes), so
     the square roots and trigonometry here are not repeated at every step.
     """
+    derive_geometry(p, d)
+    derive_machine(p, d)
+
+
+@jit_inline
+def derive_geometry(p, d):
+    """The constants of :func:`derive` that depend on GEOMETRY_INPUTS only: the boom's
+    mounting angle (cos, sin) and the extension end stop."""
+    d[D.cos_alpha] = np.cos(p[P.alpha])
+    d[D.sin_alpha] = np.sin(p[P.alpha])
+    d[D.x_end] = stroke_end(p[P.x_max], p[P.theta_max], p[P.L_1], p[P.L_2], p[P.L_3])
+
+
+@jit_inline
+def derive_machine(p, d):
+    """The other constants of :func:`derive`: the notches' flow coefficients (Eq. (12)), the
+    areas, the inertia (Eq. (16)) and the bristle damping."""
     d[D.K_PA] = flow_coefficient(p[P.Q_N_PA], p[P.dp_N_PA])
     d[D.K_AT] = flow_coefficient(p[P.Q_N_AT], p[P.dp_N_AT])
     d[D.K_PB] = flow_coefficient(p[P.Q_N_PB], p[P.dp_N_PB])
     d[D.K_BT] = flow_coefficient(p[P.Q_N_BT], p[P.dp_N_BT])
     d[D.A_A], d[D.A_B] = areas(p[P.D_piston], p[P.D_rod])
-    d[D.cos_alpha] = np.cos(p[P.alpha])
-    d[D.sin_alpha] = np.sin(p[P.alpha])
-    d[D.x_end] = stroke_end(p[P.x_max], p[P.theta_max], p[P.L_1], p[P.L_2], p[P.L_3])
     J_tot = total_inertia(p[P.m_B], p[P.L_B], p[P.m_L], p[P.m_R], p[P.L])
     d[D.inv_J_tot] = 1.0 / J_tot
     # sigma_1 = 2 sqrt(sigma_0 J_tot / r^2) = bristle_damping(sigma_0, J_tot) / r
@@ -321,5 +340,20 @@ def step_batch_inplace(states, u, params, dt, flags):
     ds, d = views.whole(ds_owner), views.whole(d_owner)
     for i in range(states.shape[0]):
         p = views.row(params, i)
-        derive(p, d)
+        # derive() is 40 % of a step (trigonometry, square roots, divisions). The sigma points of
+        # a filter differ in parameters it does not read (faults, load force) or, for calibration
+        # states, in a few it does, never in the geometry: derive again only what changed.
+        if i == 0 or not _same(params, i, GEOMETRY_COLS):
+            derive_geometry(p, d)
+        if i == 0 or not _same(params, i, MACHINE_COLS):
+            derive_machine(p, d)
         flags[i] = euler_step(views.row(states, i), u[i], p, d, dt, ds)
+
+
+@jit_inline
+def _same(params, i, cols):
+    """Row i of params (n, len(P)) equals row i - 1 in the columns cols."""
+    for c in cols:
+        if params[i, c] != params[i - 1, c]:
+            return False
+    return True
