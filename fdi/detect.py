@@ -946,7 +946,12 @@ def _likelihood_isolation(out: FilterOutput, th: Thresholds, b: int, stats: dict
                 f"{th.false_isolation_level:g} false-isolation level): the second fault is not isolable")
         return "fault, not isolable", [name] + second, {name: size}, conf, None, lik, note
     if d.hypothesis is not None:
-        return "fault", [name], {name: size}, conf, float(out.t[d.index]), lik, ""
+        note = ""
+        if d.window_misfit:
+            note = (f"the data after the alarm fit no constant fault or pair (every mean NIS above "
+                    f"{isolate.FIT_NIS:g}, the filter's expected value): the fault may be intermittent or "
+                    f"changing; the decision at the alarm stands")
+        return "fault", [name], {name: size}, conf, float(out.t[d.index]), lik, note
     cands = [isolate.hypothesis_name(h, d.size) for h in d.candidates]
     note = (f"no single-fault hypothesis beats the others by {margin:.2g} nats (the margin of a "
             f"{th.false_isolation_level:g} false-isolation level): {', '.join(cands)} explain the data alike")
