@@ -697,13 +697,13 @@ def alarm_judging(out: FilterOutput, th: Thresholds, baseline=None) -> dict:
     does: the confirmation evidence (``th.confirm_nats``), the tests restarted with re-learnt
     baselines after a withdrawn alarm (:func:`restarted_statistics`; not for the GLR detector,
     whose statistics are not CUSUMs) and no fault named on an end stop where it cannot act
-    (:func:`held_on_stop`). Replay (:func:`diagnose`) and the tune both take them from here, so
+    (:func:`held_on_stop`, :func:`on_end_stop`). Replay (:func:`diagnose`) and the tune both take them from here, so
     that they judge alike."""
     from . import isolate
 
     return {"confirm": isolate.confirm_evidence(th),
             "restart": None if th.detector == "glr" else restarted_statistics(out, th, baseline),
-            "hidden": held_on_stop(out, th)}
+            "hidden": held_on_stop(out, th), "on_stop": on_end_stop(out)}
 
 
 def detector_statistics(out: FilterOutput, th: Thresholds, diag: "Diagnosis", baseline=None, b: int = 0) -> dict:

@@ -652,15 +652,21 @@ class Decision:
 
 
 def decide(bank: BankResult, i: int, k_alarm: int, margin: float, confirm: float = -math.inf,
-           hidden: np.ndarray | None = None, conf: tuple | None = None) -> Decision:
+           hidden: np.ndarray | None = None, conf: tuple | None = None, on_stop: np.ndarray | None = None) -> Decision:
     """First sample k >= k_alarm at which the best fault hypothesis of bank run i beats every
     other fault hypothesis by ``margin`` nats and the healthy one by ``confirm`` nats (causal:
     L_H(k) uses samples up to k). The decision is confirmed (the alarm stands) if at some sample
     >= k_alarm the best fault beats the healthy hypothesis by ``confirm`` and its filter has
     moved its parameter by MIN_SINGLE_SIZE (:func:`_credible`), isolated or not. ``hidden``
     (F, T) bool, FAULTS order, recording samples of the run: where each fault parameter cannot
-    show (:func:`fdi.detect.held_on_stop`): no decision or confirmation names a fault there,
-    and its evidence over "none" counts only the samples where it can show (:func:`_evidence`).
+    show (:func:`fdi.detect.held_on_stop`): its evidence over "none" counts only the samples
+    where it can show (:func:`_evidence`), and a decision or confirmation at a sample where the
+    best fault cannot show is taken on the data up to the last sample where it could with the
+    piston off the stops (``on_stop`` (T,), recording samples; :func:`_last_shown`): a stretch on
+    an end stop adds nothing to it, for or against. Measured
+    (session 23): until then no decision was taken there at all, and a +1 % offset at 749 kg
+    whose evidence (556 nats, estimate +1.00 %) was complete when the boom came down onto the
+    retracted stop 0.56 s after the onset, before the bank's earliest decision, was withdrawn.
     ``conf``: (fault, L_fault (L,), L_none (L,)) of run i from :func:`confirmation_bank`, the
     cumulative log-likelihoods over the same window of the naming bank's best fault and of
     "none" with calibration states as uncertain constants (:data:`CONFIRM_CALIBRATE`): the lead
@@ -670,20 +676,22 @@ def decide(bank: BankResult, i: int, k_alarm: int, margin: float, confirm: float
     nv = int(bank.n_valid[i])
     ll = bank.loglik[i][fi, :nv]  # (F, nv)
     start = min(max(0, k_alarm - int(bank.k0[i])), nv - 1)
-    srt = np.sort(ll, axis=0)
+    e = _last_shown(ll, hidden, int(bank.k0[i]), on_stop)  # each sample's decision uses the data up to e
+    shown, e = e >= 0, np.maximum(e, 0)
+    srt = np.sort(ll[:, e], axis=0)
     if conf is None:
-        lead = _evidence(ll, bank.loglik[i, names.index("none"), :nv], hidden, int(bank.k0[i]))[start:]
+        lead = _evidence(ll, bank.loglik[i, names.index("none"), :nv], hidden, int(bank.k0[i]))[e][start:]
     else:
         f, ll_f, ll_n = conf
         hid = None if hidden is None else hidden[[FAULTS.index(f)]]
-        lead = _evidence(ll_f[None, :nv], ll_n[:nv], hid, int(bank.k0[i]))[start:]
-    credible = _credible(bank, i, fi, ll, hidden)[start:]
+        lead = _evidence(ll_f[None, :nv], ll_n[:nv], hid, int(bank.k0[i]))[e][start:]
+    credible = (_credible(bank, i, fi, ll, hidden)[e] & shown)[start:]
     stood = np.flatnonzero((lead >= confirm) & (credible | (confirm == -math.inf)))  # -inf: every alarm stands
     ok = np.flatnonzero((srt[-1, start:] - srt[-2, start:] >= margin) & credible & (lead >= confirm))
     at = start + int(ok[0]) if len(ok) else nv - 1
-    best = int(np.argmax(ll[:, at]))
-    llr = {h: float(ll[q, at] - ll[best, at]) for q, h in enumerate(FAULTS)}
-    llr_none = float(ll[best, at] - bank.loglik[i, names.index("none"), at])
+    best = int(np.argmax(ll[:, e[at]]))
+    llr = {h: float(ll[q, e[at]] - ll[best, e[at]]) for q, h in enumerate(FAULTS)}
+    llr_none = float(ll[best, e[at]] - bank.loglik[i, names.index("none"), e[at]])
     # size: the best filter's estimate of its constant parameter from all the window's data
     # (its last sample), minus the healthy value
     hb = fi[best]
@@ -722,6 +730,23 @@ def _credible(bank: BankResult, i: int, fi: list, ll: np.ndarray, hidden: np.nda
     if hidden is not None:
         ok &= ~hidden[best, int(bank.k0[i]) + k]
     return ok
+
+
+def _last_shown(ll: np.ndarray, hidden: np.ndarray | None, k0: int, on_stop: np.ndarray | None = None) -> np.ndarray:
+    """(L,) per bank sample k: the sample whose data a decision at k is taken on (:func:`decide`):
+    k itself where the best hypothesis there (largest ll (F, L)) can show; where it cannot
+    (``hidden``, (F, T) recording samples from ``k0`` on), the last sample before it at which
+    the best fault there could show with the piston off the end stops (``on_stop`` (T,); -1:
+    none). Why off the stops: a parameter is hidden only once its test is held (the pressures
+    pinned), a few hundred ms after the piston lands, and the evidence of those first samples
+    on the stop is the stop's bias (measured, session 23: a healthy 681 kg long cycle whose
+    offset- led "none" by 43 nats, all gathered in the 0.25 s between landing and hiding)."""
+    k = np.arange(ll.shape[1])
+    if hidden is None:
+        return k
+    shows = ~hidden[np.argmax(ll, axis=0), k0 + k]
+    off = shows if on_stop is None else shows & ~on_stop[k0 + k]
+    return np.where(shows, k, np.maximum.accumulate(np.where(off, k, -1)))
 
 
 def moved_enough(fault, change) -> np.ndarray:
@@ -825,7 +850,7 @@ def first_alarms(stats: dict, h: dict) -> tuple[np.ndarray, list]:
 def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float,
             horizon_s: float | None = None, rows=None, k_stop=None, size: bool = True,
             pairs: bool = True, pair_horizon_s: float | None = PAIR_WINDOW_S, confirm: float = -math.inf,
-            restart=None, hidden: np.ndarray | None = None) -> dict:
+            restart=None, hidden: np.ndarray | None = None, on_stop: np.ndarray | None = None) -> dict:
     """Run the reference and the bank for every run (of ``rows``) that alarmed, batched;
     returns run -> Decision. A run's window is [k0, end of the record) or, with ``horizon_s``,
     [k0, alarm + horizon_s], never beyond ``k_stop``. In stages, so that the five filters run
@@ -846,14 +871,15 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
     window and the next alarm is examined in turn (at most :func:`max_episodes`); the run's Decision
     is the first confirmed one (``withdrawn``: the earlier alarms) or, if none stands, the
     last withdrawn one (``confirmed`` False). ``hidden`` (B, F, T) bool, FAULTS order: where
-    each fault parameter cannot show (:func:`fdi.detect.held_on_stop`; see :func:`decide`)."""
+    each fault parameter cannot show (:func:`fdi.detect.held_on_stop`; see :func:`decide`), and
+    ``on_stop`` (B, T) bool: where the piston is on an end stop (:func:`fdi.detect.on_end_stop`)."""
     B, T = out.mean.shape[:2]
     rows = np.arange(B) if rows is None else np.asarray(rows, dtype=np.int64)
     stop = np.full(B, T, dtype=np.int64)  # per run: never judged beyond this sample
     if k_stop is not None:
         stop[rows] = np.minimum(T, k_stop)
     decs = _episode(out, stats, h, k_ready, margin, horizon_s, rows, stop[rows], size, pairs, pair_horizon_s, confirm,
-                    hidden)
+                    hidden, on_stop=on_stop)
     todo = _withdraw(decs, decs)
     if restart is None:
         return decs
@@ -871,7 +897,7 @@ def isolate(out: FilterOutput, stats: dict, h: dict, k_ready: int, margin: float
         if reference is None:
             reference = (np.array(todo), run_reference(out, np.array(todo), stop[todo]))
         nxt = _episode(out, restart(start), h, np.maximum(k_ready, start), margin, horizon_s, np.array(todo),
-                       stop[todo], size, pairs, pair_horizon_s, confirm, hidden, reference)
+                       stop[todo], size, pairs, pair_horizon_s, confirm, hidden, reference, on_stop)
         todo = _withdraw(nxt, decs)
     for b in todo:
         decs[b].episodes_capped = True
@@ -923,7 +949,8 @@ def _withdraw(new: dict, decs: dict) -> list:
 
 
 def _episode(out: FilterOutput, stats: dict, h: dict, k_ready, margin: float, horizon_s, rows, k_stop,
-             size: bool, pairs: bool, pair_horizon_s, confirm: float, hidden=None, reference=None) -> dict:
+             size: bool, pairs: bool, pair_horizon_s, confirm: float, hidden=None, reference=None,
+             on_stop=None) -> dict:
     """One alarm per run (the first of ``stats``): the stages of :func:`isolate` for runs ``rows``
     (array), each judged up to ``k_stop`` (one sample per row). ``k_ready``: a sample, or one
     per run (B,), before which no onset is estimated. ``reference``: (runs, their reference
@@ -951,14 +978,15 @@ def _episode(out: FilterOutput, stats: dict, h: dict, k_ready, margin: float, ho
     kept = confirm_calibration(ref.config) if confirm > -math.inf else ()
     cb = confirmation_bank(out, ref, bank, rows, k0, k_a1, ka, kept)
     hid = (lambda b: None) if hidden is None else (lambda b: hidden[b])
-    decs = [decide(bank, i, int(kd[i]), margin, confirm, hid(b), cb[i]) for i, b in enumerate(rows)]
+    stp = (lambda b: None) if on_stop is None else (lambda b: on_stop[b])
+    decs = [decide(bank, i, int(kd[i]), margin, confirm, hid(b), cb[i], stp(b)) for i, b in enumerate(rows)]
     seeds = [start_seed(bank, i, d.onset) for i, d in enumerate(decs)]  # of the decided filter
     late = np.array([i for i, d in enumerate(decs) if d.hypothesis is None and k1[i] > k_a1[i]], dtype=np.int64)
     if len(late):  # stage 2: the undecided runs over their whole window
         bank2 = run_bank_starts(out, ref, rows[late], k0[late], k1[late], ka[late], ref_rows=late)
         cb2 = confirmation_bank(out, ref, bank2, rows[late], k0[late], k1[late], ka[late], kept, ref_rows=late)
         for q, i in enumerate(late):
-            decs[i] = decide(bank2, q, int(kd[i]), margin, confirm, hid(rows[i]), cb2[q])
+            decs[i] = decide(bank2, q, int(kd[i]), margin, confirm, hid(rows[i]), cb2[q], stp(rows[i]))
             seeds[i] = start_seed(bank2, q, decs[i].onset)
     for i, d in enumerate(decs):
         d.alarm = int(ka[i])

@@ -586,7 +586,10 @@ def test_no_fault_is_named_where_its_parameter_cannot_show():
     reached and the alarm stands at sample 1003. With its test hidden over recording samples
     1000-1005 (the piston on an end stop with the valve open) the evidence gathered there does
     not count: 20 nats are reached at 1009, where K_int is named. Hidden over the whole window,
-    the alarm is withdrawn; a hidden K_extA (another parameter) changes nothing."""
+    the alarm is withdrawn; a hidden K_extA (another parameter) changes nothing. Hidden from 1006
+    on, with the earliest decision at 1008, K_int is named at 1008 on the data up to 1005 (30 nats):
+    a stretch on the stop adds nothing, for or against (until session 23 it was withdrawn); if the
+    piston was on the stop from 1003, on the data up to 1002 only (15 nats): withdrawn."""
     L = 12
     names = tuple(iso.BANK)
     ll = np.zeros((1, len(names), L))
@@ -612,6 +615,15 @@ def test_no_fault_is_named_where_its_parameter_cannot_show():
     other[iso.FAULTS.index("K_extA")] = True
     d = confirmed(other)
     assert (d.hypothesis, d.index, d.confirmed) == ("K_int", 1003, True)
+    landed = np.zeros_like(hidden)
+    landed[iso.FAULTS.index("K_int"), 1006:] = True
+    d = iso.decide(bank, 0, 1008, iso.margin_for(), confirm=20.0, hidden=landed)
+    assert (d.hypothesis, d.index, d.confirmed, d.confirm_index) == ("K_int", 1008, True, 1008)
+    assert d.lead_max == pytest.approx(30.0) and d.llr_none == pytest.approx(30.0)
+    stop = np.zeros(1100, dtype=bool)
+    stop[1003:] = True  # on the stop from 1003, its test held (hidden) from 1006: 1003-1005 are the stop's
+    d = iso.decide(bank, 0, 1008, iso.margin_for(), confirm=20.0, hidden=landed, on_stop=stop)
+    assert (d.hypothesis, d.confirmed) == (None, False) and d.lead_max == pytest.approx(15.0)
 
 
 def test_unseen_notch_flows_are_not_taken_for_a_fault():
@@ -702,3 +714,20 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     assert max(shown[h][0, k - 1] for h in shown for k in restarts) > 20 * 5.0 * DT
     for h in shown:
         np.testing.assert_array_equal(shown[h][0, :restarts[0]], stats[h][0, :restarts[0]])
+
+
+def test_offset_whose_boom_settles_on_the_stop_is_isolated_within_1s():
+    """Two held-out +1 % offset runs of the tune (encoder, 800 and 749 kg, chunk seed 500100): the
+    valve retracts and the boom comes down onto the retracted stop about 0.5 s after the onset, and
+    the offset cannot show there. The bank had it thousands of nats ahead of every other fault and
+    the size right before the landing; judged as the tune judges (decisions up to onset + 1 s), both
+    are isolated as offset+ within 1 s (session 22: withdrawn, since every sample from the bank's
+    earliest decision on was on the stop)."""
+    from fdi import tune
+    from fdi.detect import Thresholds
+
+    res = tune._chunk_job(load_plant(), Thresholds.shipped("encoder"), "offset", 0.01, 25, 500100)
+    for b in (22, 23):
+        assert res["m_L"][b] > 740.0
+        assert tune.HYP[res["iso_h"][b]] == "offset+", (b, res["iso_h"][b])
+        assert 0 <= res["iso_k"][b] - res["k_onset"][b] <= 1000
