@@ -117,9 +117,6 @@ MIN_PAIR_SIZE = {"K_int": 0.1 * K_PER_LPM, "K_extA": 0.1 * K_PER_LPM, "K_extB": 
 #: (held out, session 13: 2 of the 13 wrong isolations named a leak of -1e-20 in +1 / +2 %
 #: offset runs).
 MIN_SINGLE_SIZE = {k: 0.5 * v for k, v in MIN_PAIR_SIZE.items()}
-#: Prior std of the free fault parameter (SI): the largest leak of the issue's grid (1 L/min)
-#: and the offset that changes the pressures as much (2 %). Measured: scaling both by 0.1 or
-#: 0.3 changes no decision (the likelihood gaps are tens to thousands of nats).
 #: The largest mean normalised innovation squared (over the several-faults window) of a hypothesis
 #: that explains the data there: its expected value, m = 3 measured channels, under the filter's
 #: own noise model (a consistency test of the NIS at its mean, Bar-Shalom). Why: that window's
@@ -130,6 +127,9 @@ MIN_SINGLE_SIZE = {k: 0.5 * v for k, v in MIN_PAIR_SIZE.items()}
 #: K_int so 3.62-6.37 (named K_int + K_extB before); 1 L/min K_int so 9.6-21.6. Not fitted to a
 #: false-alarm level.
 FIT_NIS = 3.0
+#: Prior std of the free fault parameter (SI): the largest leak of the issue's grid (1 L/min)
+#: and the offset that changes the pressures as much (2 %). Measured: scaling both by 0.1 or
+#: 0.3 changes no decision (the likelihood gaps are tens to thousands of nats).
 PRIOR_SD = {I_KINT: 1.0 * K_PER_LPM, I_KEXTA: 1.0 * K_PER_LPM, I_KEXTB: 1.0 * K_PER_LPM, I_OFFSET: 0.02}
 #: Relative prior std of a held fault state in the reference filter (x its detection p0):
 #: small enough that it does not move, large enough for a well-conditioned covariance.
