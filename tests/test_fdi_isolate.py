@@ -379,6 +379,21 @@ def test_early_decision_revised_by_the_data_after_the_alarm(monkeypatch):
     assert "revised to offset-" in d.note
 
 
+def _revision_bank(lead: float, nis: np.ndarray | None = None) -> "iso.BankResult":
+    """A hand-made several-faults bank of one run whose single-fault evidence at the window's end
+    puts the offset ``lead`` nats ahead of every other single (the pairs far behind), its filter's
+    change -3 %; every hypothesis' mean NIS ``nis`` (1, H) (default 3, at FIT_NIS)."""
+    H, L = len(iso.MULTI), 5
+    ll = np.zeros((1, H, L))
+    ll[0, :, -1] = -100.0  # pairs far behind
+    ll[0, :len(iso.FAULTS), -1] = [-lead, -lead - 1.0, -lead - 2.0, 0.0]  # K_int, K_extA, K_extB, offset
+    change = np.zeros((1, H, 4))
+    change[0, 3, 3] = -0.03  # the offset filter's change: -3 %
+    return iso.BankResult(k0=np.array([100]), loglik=ll, free=np.zeros((1, H, L)), free_sd=np.zeros((1, H, L)),
+                          healthy=np.zeros((1, H)), n_valid=np.array([L]), names=iso.MULTI, change=change,
+                          change_sd=np.full((1, H, 4), 1e-3), nis=np.full((1, H), 3.0) if nis is None else nis)
+
+
 def test_revision_rule_on_hand_made_evidence():
     """_revise through decide_pair, on a hand-made several-faults bank whose single-fault
     evidence at the window's end puts the offset ahead of every other single by 20 nats: an
@@ -386,17 +401,7 @@ def test_revision_rule_on_hand_made_evidence():
     decision is revised when the later offset is negative (the other side); an early offset-
     decision is kept; an early "not isolable" is resolved; a 3-nat lead revises nothing, nor does
     an offset filter that moved by 0.3 % only."""
-    H, L = len(iso.MULTI), 5
-
-    def bank(lead):
-        ll = np.zeros((1, H, L))
-        ll[0, :, -1] = -100.0  # pairs far behind
-        ll[0, :len(iso.FAULTS), -1] = [-lead, -lead - 1.0, -lead - 2.0, 0.0]  # K_int, K_extA, K_extB, offset
-        change = np.zeros((1, H, 4))
-        change[0, 3, 3] = -0.03  # the offset filter's change: -3 %
-        return iso.BankResult(k0=np.array([100]), loglik=ll, free=np.zeros((1, H, L)), free_sd=np.zeros((1, H, L)),
-                              healthy=np.zeros((1, H)), n_valid=np.array([L]), names=iso.MULTI, change=change,
-                              change_sd=np.full((1, H, 4), 1e-3), nis=np.full((1, H), 3.0))
+    bank = _revision_bank
 
     def early(hyp, size):
         llr = {h: (0.0 if h == (hyp or "K_int") else -1.0) for h in iso.FAULTS}
@@ -422,17 +427,10 @@ def test_a_window_no_constant_fault_fits_revises_and_adds_nothing():
     revise K_int to the offset and name K_int + K_extA when they fit, do neither with every mean NIS
     at 5, nor when only the leading hypothesis misfits; the decision says the window fits none."""
     m = iso.margin_for(0.01, len(iso.MULTI))
-    H, L = len(iso.MULTI), 5
+    H = len(iso.MULTI)
 
-    def revising(nis):
-        ll = np.zeros((1, H, L))
-        ll[0, :, -1] = -100.0
-        ll[0, :len(iso.FAULTS), -1] = [-20.0, -21.0, -22.0, 0.0]  # the offset 20 nats ahead
-        change = np.zeros((1, H, 4))
-        change[0, 3, 3] = -0.03
-        return iso.BankResult(k0=np.array([100]), loglik=ll, free=np.zeros((1, H, L)), free_sd=np.zeros((1, H, L)),
-                              healthy=np.zeros((1, H)), n_valid=np.array([L]), names=iso.MULTI, change=change,
-                              change_sd=np.full((1, H, 4), 1e-3), nis=nis)
+    def revising(nis):  # the offset 20 nats ahead
+        return _revision_bank(20.0, nis)
 
     def k_int():
         return iso.Decision("K_int", 50, ["K_int"], {h: 0.0 for h in iso.FAULTS}, 10.0, 40, 40, 1e-9, 1e-3)
