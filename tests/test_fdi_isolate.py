@@ -554,6 +554,62 @@ def test_a_fault_is_named_only_once_its_filter_has_moved():
     assert (d.hypothesis, d.index) == ("offset", 1000)
 
 
+def test_a_fault_is_named_only_where_the_calibrated_bank_ranks_it_first():
+    """decide() with a confirmation bank (calibration uncertain) on a hand-made bank: the naming
+    bank (calibration held) has offset ahead of K_int by 30 nats and both 100 nats ahead of the
+    rest; the confirmation bank's offset leads "none" by 60 nats. Where the calibrated bank also
+    has offset ahead of K_int, offset is named at once; where it has K_int ahead for the first 5
+    samples, offset is named at sample 5; where it never does, nothing is named although the
+    alarm stands (confirmation is the best fault's lead over "none", as before): the K_int /
+    offset ridge of session 24, where holding the calibration decided the name."""
+    L = 12
+    names = tuple(iso.BANK)
+    ll = np.zeros((1, len(names), L))
+    ll[0, names.index("offset")] = 130.0
+    ll[0, names.index("K_int")] = 100.0
+    free = np.zeros((1, len(names), L))
+    free[0, names.index("offset")] = -0.01
+    bank = iso.BankResult(k0=np.array([1000]), loglik=ll, free=free, free_sd=np.ones((1, len(names), L)),
+                          healthy=np.zeros((1, len(names))), n_valid=np.array([L]), names=names,
+                          start=np.full((1, len(names)), 1000))
+
+    def conf(kint_ahead: int):
+        c = np.zeros((2, L))
+        c[0] = 60.0  # offset, whose lead over "none" (0) confirms
+        c[1] = np.where(np.arange(L) < kint_ahead, 70.0, 50.0)  # K_int
+        return ("offset", "K_int"), c, np.zeros(L)
+
+    d = iso.decide(bank, 0, 1000, iso.margin_for(), confirm=20.0, conf=conf(0))
+    assert (d.hypothesis, d.index, d.confirmed) == ("offset", 1000, True)
+    d = iso.decide(bank, 0, 1000, iso.margin_for(), confirm=20.0, conf=conf(5))
+    assert (d.hypothesis, d.index, d.confirmed) == ("offset", 1005, True)
+    d = iso.decide(bank, 0, 1000, iso.margin_for(), confirm=20.0, conf=conf(L))
+    assert (d.hypothesis, d.confirmed, d.confirm_index) == (None, True, 1000)
+
+
+def test_a_naming_bank_without_later_none_filters_has_the_same_fault_evidence(bank_runs):
+    """run_bank_starts(later_none=False), the naming bank when a confirmation bank judges the
+    alarm: every fault hypothesis' log-likelihood, estimate and start are those of the full bank
+    (the later starts' fault filters are seeded from the first "none" either way), and "none" is
+    the first start's alone. The later starts' own "none" differs from it (it restarts from the
+    diagonal of the posterior), which is why a bank that confirms keeps it."""
+    out, ref, rows, k0, k1, _ = bank_runs
+    rows, k0, k1 = rows[:2], k0[:2], k1[:2]
+    ka = k0 + 2 * int(round(iso.START_STEP_S / DT))
+    full = iso.run_bank_starts(out, ref, rows, k0, k1, ka)
+    lean = iso.run_bank_starts(out, ref, rows, k0, k1, ka, later_none=False)
+    first = iso.run_bank(out, ref, rows, k0, k1)
+    faults = [list(iso.BANK).index(h) for h in iso.FAULTS]
+    np.testing.assert_array_equal(lean.loglik[:, faults], full.loglik[:, faults])
+    np.testing.assert_array_equal(lean.free, full.free)
+    np.testing.assert_array_equal(lean.start[:, faults], full.start[:, faults])
+    np.testing.assert_array_equal(lean.start[:, 0], k0)  # "none" from the first start
+    for i in range(2):
+        L = int(k1[i] - k0[i])
+        np.testing.assert_allclose(lean.loglik[i, 0, :L], first.loglik[i, 0, :L], rtol=1e-12)
+    assert not np.allclose(full.loglik[:, 0], lean.loglik[:, 0])
+
+
 def test_an_alarm_stands_only_when_the_bank_confirms_it():
     """decide() with the confirmation evidence (Thresholds.confirm_nats) on a hand-made bank:
     K_int leads every other fault hypothesis by 50 nats from the first sample, and the healthy
