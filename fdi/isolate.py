@@ -945,7 +945,8 @@ def confirmation_bank(out: FilterOutput, ref: FilterOutput, bank: BankResult, ro
     names = list(bank.names)
     fi = [names.index(h) for h in FAULTS]
     last = np.asarray(bank.n_valid) - 1
-    top = [tuple(FAULTS[j] for j in np.argsort(bank.loglik[i, fi, last[i]])[::-1][:2]) for i in range(len(rows))]
+    # (stable: on a tie the first, as np.argmax would name it)
+    top = [tuple(FAULTS[j] for j in np.argsort(-bank.loglik[i, fi, last[i]], kind="stable")[:2]) for i in range(len(rows))]
     res = [None] * len(rows)
     for pair in set(top):
         g = np.array([i for i in range(len(rows)) if top[i] == pair], dtype=np.int64)
