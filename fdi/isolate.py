@@ -704,7 +704,8 @@ def decide(bank: BankResult, i: int, k_alarm: int, margin: float, confirm: float
         lead = _evidence(ll_c[:1, :nv], ll_n[:nv], hid, int(bank.k0[i]))[e][start:]
         # the two banks must rank the pair alike: where holding the calibration decides between
         # them, the name would be the calibration's, not the data's
-        agree = np.asarray(FAULTS)[np.argmax(ll[:, e], axis=0)] == np.asarray(pair)[np.argmax(ll_c[:, :nv][:, e], axis=0)]
+        named_held = np.asarray(FAULTS)[np.argmax(ll[:, e], axis=0)]
+        agree = named_held == np.asarray(pair)[np.argmax(ll_c[:, :nv][:, e], axis=0)]
     credible = (_credible(bank, i, fi, ll, hidden)[e] & shown)[start:]
     stood = np.flatnonzero((lead >= confirm) & (credible | (confirm == -math.inf)))  # -inf: every alarm stands
     ok = np.flatnonzero((srt[-1, start:] - srt[-2, start:] >= margin) & credible & (lead >= confirm) & agree[start:])
@@ -945,8 +946,9 @@ def confirmation_bank(out: FilterOutput, ref: FilterOutput, bank: BankResult, ro
     names = list(bank.names)
     fi = [names.index(h) for h in FAULTS]
     last = np.asarray(bank.n_valid) - 1
-    # (stable: on a tie the first, as np.argmax would name it)
-    top = [tuple(FAULTS[j] for j in np.argsort(-bank.loglik[i, fi, last[i]], kind="stable")[:2]) for i in range(len(rows))]
+    # the two best at the window's end (stable: on a tie the first, as np.argmax would name it)
+    order = [np.argsort(-bank.loglik[i, fi, last[i]], kind="stable") for i in range(len(rows))]
+    top = [(FAULTS[o[0]], FAULTS[o[1]]) for o in order]
     res = [None] * len(rows)
     for pair in set(top):
         g = np.array([i for i in range(len(rows)) if top[i] == pair], dtype=np.int64)
