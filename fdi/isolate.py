@@ -618,7 +618,10 @@ class Decision:
     index: int  #: recording sample of the decision (-1: none)
     candidates: list  #: fault hypotheses within the margin of the best at the decision (or last) sample
     llr: dict  #: hypothesis -> its log-likelihood minus the best one's at that sample [nats]
-    llr_none: float  #: best fault hypothesis minus the healthy hypothesis at that sample [nats]
+    #: best fault hypothesis minus the healthy hypothesis at that sample, in the naming bank [nats]
+    #: (reported, not judged: the alarm stands on the confirmation bank's lead, ``lead_max``; with a
+    #: confirmation bank the naming bank's "none" runs from the first candidate onset only)
+    llr_none: float
     k0: int  #: first sample of the bank
     onset: int = -1  #: onset estimate: the start of the best (or isolated) hypothesis' most likely bank
     size: float = float("nan")  #: change of the isolated (or best) parameter, SI
