@@ -17,7 +17,9 @@ offset of the change residual can add up to (``Thresholds.memory_s``); in long s
 the K_int and offset tests count only large excursions (``Thresholds.long_stroke_s``,
 ``long_stroke_drift``: there those estimates wander by a few sigma); the false-alarm level
 is stated per healthy run of ``Thresholds.run_length_s`` (a longer recording has more
-chances). sigma, the votes, the confusable pairs and h come from the sensitivity studies of
+chances). A sixth alarm source, the notch-flow trigger (:func:`notch_jump`, session 25), alarms
+when a notch-flow calibration state of the filter jumps by several of its own std: a fault that
+begins in a steady stroke often moves those states before its own. sigma, the votes, the confusable pairs and h come from the sensitivity studies of
 :mod:`fdi.thresholds` (docs/fdi.md). A model-fit alarm on the weighted NIS flags faults that no
 parameter explains.
 
@@ -39,8 +41,8 @@ import numpy as np
 from sam import P, S
 from sam.errors import did_you_mean
 
-from .strokes import directions, first_motion, long_strokes
-from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, I_X, FilterOutput, leak_lpm, near_end_stop, sample_step
+from .strokes import after_long_segment, directions, first_motion, long_strokes
+from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, I_X, N_AUG, FilterOutput, leak_lpm, near_end_stop, sample_step
 
 #: Fault hypotheses and the state each one reads (sign: +1 above healthy, -1 below).
 HYPOTHESES = {
@@ -51,6 +53,22 @@ HYPOTHESES = {
     "offset-": (I_OFFSET, -1),
 }
 RESIDUAL_NAMES = ("nu_pA", "nu_pB", "nu_pos") + tuple(f"r_{h}" for h in HYPOTHESES)
+#: The alarm trigger that is not a fault hypothesis (session 25; :func:`notch_jump`): its
+#: threshold is ``Thresholds.h[NOTCH_TRIGGER]`` [sigma] when the thresholds file has one.
+NOTCH_TRIGGER = "notch_flow"
+#: the detection filter's calibration states the trigger watches: the valve notches' flows
+NOTCH_STATES = ("Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT")
+#: s: the trigger is not armed in the first ``Thresholds.transient_s`` of a stroke that follows a
+#: rest or a stroke the other way at least this long (:func:`fdi.strokes.after_long_segment`).
+#: Why: there the states learn what the long segment left unseen (in a long stroke their random
+#: walk is held, ``FilterConfig.calib_hold_after_s``), and the studies' inputs hardly hold a
+#: direction that long. Measured (session 25, healthy 20 s runs of 20-60 s cycles): armed there,
+#: it raised false alarms 0.03 and 0.24 s into the first motion after 13-14 s rests (encoder, 200
+#: runs; K_int ahead of "none" by 577 and 1024 nats) and 0.25 s into the reversal that ended a
+#: 12.7 s retraction (linear, 115 runs; 51 nats). Armed only in steady strokes instead, it lost
+#: what it is for, the offsets' early alarms (held out, +-1 % isolated within 1 s 93 / 89 % as
+#: without it, wrong decisions 2 -> 5)
+NOTCH_REST_S = 2.0
 #: s; a baseline window with less unpinned data than this slides on (:func:`baseline_window`)
 MIN_BASELINE_S = 0.2
 #: Which change tests are held while the pressures are pinned (:func:`pinned`), per parameter:
@@ -137,6 +155,7 @@ RANGE_FIELDS = {
     "nis_hold_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
     "glr_start_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
     "glr_window_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
+    "notch_jump_window_s": (1e-3, 60.0, "a window in seconds (1e-3 to 60)"),
     "band_V": (0.0, 1e3, "a finite number >= 0 (an input band in volts)"),
     "nis_limit": (0.0, 1e12, "a finite number >= 0 (a weighted NIS)"),
     "pin_margin_Pa": (-1e12, 1e12, "a pressure margin in Pa (finite; below 0 nothing is pinned)"),
@@ -161,7 +180,8 @@ def _is_regime_list(test):
 #: the per-hypothesis and per-parameter tables of a thresholds file: (the keys it must have,
 #: the check of each value, what a valid value is). glr_h may be left out (the CUSUM detector).
 TABLE_FIELDS = {
-    "h": (tuple(HYPOTHESES), _is_positive, "a CUSUM threshold in sigma s (> 0)"),
+    "h": (tuple(HYPOTHESES) + (NOTCH_TRIGGER,), _is_positive,
+          f"a CUSUM threshold in sigma s, or the {NOTCH_TRIGGER} trigger's in sigma (> 0)"),
     "sigma": (tuple(PARAMS), _is_regime_list(_is_positive),
               f"a list of {len(REGIMES)} healthy spreads (> 0, SI), one per regime {REGIMES}"),
     "votes": (tuple(PARAMS), _is_regime_list(lambda b: isinstance(b, bool)),
@@ -169,6 +189,9 @@ TABLE_FIELDS = {
     "nuisance_sd": (tuple(PARAMS), _is_positive, "a spread (> 0, SI)"),
     "glr_h": (tuple(PARAMS), _is_positive, "an evidence threshold in nats (> 0)"),
 }
+
+#: keys a table may leave out: files before session 25 have no notch-flow trigger
+OPTIONAL_KEYS = {"h": (NOTCH_TRIGGER,)}
 
 
 def _check_tables(data: dict) -> None:
@@ -185,7 +208,7 @@ def _check_tables(data: dict) -> None:
                 raise ValueError(f"{name!r}: unknown key {key!r}{did_you_mean(key, keys)}")
             if not ok(value):
                 raise ValueError(f"'{name}.{key}' = {value!r} is not {what}")
-        missing = [k for k in keys if k not in table]
+        missing = [k for k in keys if k not in table and k not in OPTIONAL_KEYS.get(name, ())]
         if missing and name != "glr_h":
             raise ValueError(f"{name!r} has no value for {', '.join(map(repr, missing))}")
     pairs = data.get("confusable", [])
@@ -224,7 +247,11 @@ class Thresholds:
     #: faults that begin inside a long stroke than with the tests held there.
     long_stroke_s: float | None = None
     long_stroke_drift: float = 4.0  #: sigma: the CUSUM drift in long strokes (long_stroke_s)
-    h: dict = field(default_factory=lambda: {k: 1.0 for k in HYPOTHESES})  #: sigma s
+    #: sigma s, per hypothesis; and under :data:`NOTCH_TRIGGER`, if present, the threshold [sigma]
+    #: of the notch-flow trigger (:func:`notch_jump`; files before session 25 have none)
+    h: dict = field(default_factory=lambda: {k: 1.0 for k in HYPOTHESES})
+    #: s: the window over which the notch-flow trigger measures a jump (:func:`notch_jump`)
+    notch_jump_window_s: float = 0.2
     warmup_s: float = 0.5  #: no alarms while the filter converges
     #: healthy baseline = mean estimate over [warmup, warmup + baseline_s], its unpinned samples
     #: (later ones if the run starts pinned: :func:`baseline_window`)
@@ -541,11 +568,16 @@ def change_residuals(out: FilterOutput, th: "Thresholds", baseline: np.ndarray |
     the regime index (B, T) and the samples at which each is held (B, 4, T; :func:`held`). Zero
     before the baseline is known."""
     reg, hidden, base, ready = _test_masks(out, th, baseline, u)
+    return _changes(out, th, reg, base, ready), reg, hidden
+
+
+def _changes(out: FilterOutput, th: "Thresholds", reg, base, ready) -> dict:
+    """The change residuals of :func:`change_residuals` from its masks (:func:`_test_masks`)."""
     res = {}
     for i, (name, j) in enumerate(PARAMS.items()):
         sd = change_spread(out.std[:, :, j], np.asarray(th.sigma[name], dtype=float)[reg], th.sd_weight(name))
         res[name] = np.where(ready[:, i], (out.mean[:, :, j] - base[:, i:i + 1]) / sd, 0.0)
-    return res, reg, hidden
+    return res
 
 
 def change_spread(sd_filter: np.ndarray, sigma: np.ndarray, w: float) -> np.ndarray:
@@ -642,14 +674,59 @@ def statistics(out: FilterOutput, th: Thresholds, baseline=None,
     warm = int(round(th.warmup_s / dt))
     if start is not None:
         warm = np.maximum(warm, np.asarray(start, dtype=np.int64))
-    chg, reg, hidden = change_residuals(out, th, baseline)
+    reg, hidden, base, ready = _test_masks(out, th, baseline)
+    chg = _changes(out, th, reg, base, ready)
     long_stroke = long_stroke_mask(out, th)
     stats = {}
     for h, (j, sign) in HYPOTHESES.items():
         param = h.rstrip("+-")
         active = np.asarray(th.votes[param], dtype=bool)[reg] & ~hidden[:, list(PARAMS).index(param)]
         stats[h] = cusum(sign * chg[param], cusum_drift(param, long_stroke, th), dt, warm, active, th.memory_s)
+    if uses_notch_trigger(out, th):
+        stats[NOTCH_TRIGGER] = notch_jump(out, th, notch_armed(out, th, ready), warm)
     return stats
+
+
+def notch_armed(out: FilterOutput, th: Thresholds, ready: np.ndarray) -> np.ndarray:
+    """(B, T) where the notch-flow trigger is armed: every change test armed (``ready``, (B, 4, T))
+    and not just after a long rest or stroke (:data:`NOTCH_REST_S`; everywhere without the input)."""
+    armed = ready.all(axis=1)
+    if out.u is None:
+        return armed
+    return armed & ~after_long_segment(out.u, sample_step(out.t), th.band_V, NOTCH_REST_S, th.transient_s)
+
+
+def uses_notch_trigger(out: FilterOutput, th: Thresholds) -> bool:
+    """Whether the notch-flow trigger runs: the thresholds have its h, the likelihood bank names
+    what it finds (it is no fault hypothesis) and the detection filter has notch-flow states."""
+    return (NOTCH_TRIGGER in th.h and th.isolation == "likelihood"
+            and all(n in out.config.calibrate for n in NOTCH_STATES))
+
+
+def notch_jump(out: FilterOutput, th: Thresholds, armed: np.ndarray, start=0) -> np.ndarray:
+    """The notch-flow trigger's statistic (B, T) [sigma]: the largest jump of a notch-flow
+    calibration state of the detection filter (:data:`NOTCH_STATES`) over the last
+    ``th.notch_jump_window_s``, in its own posterior std at the window's start, less
+    ``th.drift``, and 0 below that; 0 where not ``armed`` (B, T) and before ``start`` + the window
+    (a sample, or one per run (B,)). It alarms above ``th.h[NOTCH_TRIGGER]``.
+
+    Why: in a steady stroke a fault that begins changes the flow balance as a notch-flow error
+    does, and the filter puts the change where its covariance is largest, often on the notch
+    states rather than on the fault state (measured, session 25: a -1 % offset stepping in a
+    3.7 V retraction moved the A->T and P->B notch states by +4 % within 0.1 s while the offset
+    estimate did not move until the valve came to rest 0.85 s later). A healthy machine's notch
+    states only learn, by about their std; a jump of several std is news. The trigger says only
+    *when*: the likelihood bank names the fault (:func:`fdi.isolate.isolate`), or withdraws it."""
+    dt = sample_step(out.t)
+    w = max(1, int(round(th.notch_jump_window_s / dt)))
+    cols = [N_AUG + out.config.calibrate.index(n) for n in NOTCH_STATES]
+    z, sd = out.mean[:, :, cols], out.std[:, :, cols]
+    jump = np.zeros(out.mean.shape[:2])
+    if out.mean.shape[1] > w:
+        jump[:, w:] = (np.abs(z[:, w:] - z[:, :-w]) / np.maximum(sd[:, :-w], 1e-300)).max(axis=2)
+    k = np.arange(jump.shape[1])
+    after = k[None, :] >= np.reshape(np.asarray(start, dtype=np.int64), (-1, 1)) + w
+    return np.where(armed & after, np.maximum(jump - th.drift, 0.0), 0.0)
 
 
 #: s: after a withdrawn alarm the change tests restart with each parameter's baseline re-learnt
@@ -790,7 +867,7 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
     base = (baseline_values(out, th)[b] if baseline is None
             else np.broadcast_to(np.atleast_2d(baseline), (out.mean.shape[0], 4))[b])
     size, conf = {}, {}
-    for h in alarms:
+    for h in (a for a in alarms if a in HYPOTHESES):  # the notch-flow trigger names no parameter
         j, sign = HYPOTHESES[h]
         # size of the change: estimate over the last 0.5 s minus the healthy baseline
         m = float(np.mean(out.mean[b, tail, j])) - float(base[list(PARAMS).index(h.rstrip("+-"))])

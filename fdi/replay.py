@@ -17,7 +17,7 @@ from sam.measurement import ENCODER_RESOLUTION_RAD
 
 from . import calibration
 from .detect import (
-    MIN_TESTED_S, PARAMS, Diagnosis, Thresholds, detector_statistics, diagnose, held, residuals, statistics,
+    HYPOTHESES, MIN_TESTED_S, PARAMS, Diagnosis, Thresholds, detector_statistics, diagnose, held, residuals, statistics,
 )
 from .ukf import (
     POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
@@ -415,7 +415,7 @@ def _figure(path: Path, t, out, res, stats, th, diag) -> None:
     ax2.legend(loc="upper left")
     ax3 = axes[2]
     for i, (h, g) in enumerate(stats.items()):
-        ax3.plot(t, g[0] / th.h[h], f"C{i}", label=f"CUSUM {h} / h")
+        ax3.plot(t, g[0] / th.h[h], f"C{i}", label=f"CUSUM {h} / h" if h in HYPOTHESES else f"{h} jump / h")
     ax3.axhline(1.0, color="k", ls="--", label="threshold")
     # a real fault drives g/h to hundreds or thousands: clip, so that the threshold stays readable
     top = max((float(np.nanmax(g[0] / th.h[h])) for h, g in stats.items()), default=1.0)

@@ -42,3 +42,19 @@ def long_strokes(u: np.ndarray, dt: float, band: float, after_s: float) -> np.nd
     last = np.where(inside, k, np.iinfo(np.int64).min // 2)
     np.maximum.accumulate(last, axis=1, out=last)
     return inside | ((d == 0) & ((k - last) * dt <= after_s))
+
+
+def after_long_segment(u: np.ndarray, dt: float, band: float, long_s: float, transient_s: float) -> np.ndarray:
+    """(B, T) bool: the first ``transient_s`` of each stroke (the input beyond +-band) that follows
+    a segment of at least ``long_s`` in another direction: a rest (the input within the band; the
+    record's start counts as rest) or a stroke the other way (a reversal). Causal."""
+    d, since = directions(u, dt, band)
+    B, T = d.shape
+    k = np.broadcast_to(np.arange(T)[None, :], (B, T))
+    start = np.zeros((B, T), dtype=bool)
+    start[:, 1:] = (d[:, 1:] != 0) & (d[:, 1:] != d[:, :-1])
+    after_long = np.zeros((B, T), dtype=bool)
+    after_long[:, 1:] = start[:, 1:] & (since[:, :-1] >= long_s)
+    last_start = np.maximum.accumulate(np.where(start, k, -1), axis=1)
+    last_long = np.maximum.accumulate(np.where(after_long, k, -1), axis=1)
+    return (d != 0) & (last_start >= 0) & (last_long == last_start) & ((k - last_start) * dt <= transient_s)

@@ -18,10 +18,12 @@ simulated run of the SAM followed by the batched UKF and the change residuals:
    over the design is the healthy variance sigma^2 each residual carries from
    model uncertainty (the residual's denominator); the Sobol' indices name the
    parameters that carry it. The CUSUM threshold h of each hypothesis is the
-   (1 - alpha/5) quantile (:func:`level_threshold`) of the per-run maxima of its statistic
-   over the same healthy runs, for a stated false-alarm level alpha per healthy run
-   of ``NUISANCE_DURATION`` (20 s: long enough that the runs' persistent offsets have
-   shown, docs/fdi.md "Long recordings").
+   (1 - alpha/n) quantile (:func:`level_threshold`) of the per-run maxima of its statistic
+   over the same healthy runs, for a stated level alpha per healthy run of
+   ``NUISANCE_DURATION`` (20 s: long enough that the runs' persistent offsets have shown,
+   docs/fdi.md "Long recordings"), Bonferroni over the n = 6 tests: the five CUSUMs and,
+   since session 25, the notch-flow trigger (fdi.detect.notch_jump), whose h comes from the
+   maxima of its own statistic in the same runs.
 
 ``compute_thresholds`` returns the :class:`~fdi.detect.Thresholds` and a report;
 ``write_thresholds`` writes ``thresholds.toml`` (the shipped copy is
@@ -39,8 +41,9 @@ import numpy as np
 
 from sam import P, Plant
 
-from .detect import (HYPOTHESES, MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, PARAMS, REGIMES, Thresholds, held,
-                     change_spread, cusum_drift, long_stroke_mask, own_baseline, regimes)
+from .detect import (HYPOTHESES, MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, NOTCH_STATES, NOTCH_TRIGGER, PARAMS, REGIMES,
+                     Thresholds, change_spread, cusum_drift, held, long_stroke_mask, notch_armed, notch_jump,
+                     own_baseline, regimes)
 from .synth import POSITION_SENSORS, random_input, simulate_runs
 from .ukf import preset, run_filter
 
@@ -206,7 +209,17 @@ def _nuisance_model(X: np.ndarray, th: Thresholds):
     out = _run_rows(_nuisance_params(X), X[:, -2], X[:, -1], th, duration=th.run_length_s)
     dev, sd, reg, hidden, ready = _dev(out, th)
     return (_regime_stat(dev, reg, hidden, ready, th.warmup_s + th.baseline_s, "rms", th.sample_dt_s),
-            (dev, sd, reg, hidden, ready, _glr_maxima(out, th), long_stroke_mask(out, th)))
+            (dev, sd, reg, hidden, ready, _glr_maxima(out, th), long_stroke_mask(out, th),
+             _notch_maxima(out, th, ready)))
+
+
+def _notch_maxima(out, th: Thresholds, ready) -> np.ndarray | None:
+    """(n,) per-run maxima of the notch-flow trigger's statistic (fdi.detect.notch_jump) of the
+    healthy runs in ``out``, armed as fdi.detect.statistics arms it; None for the GLR detector
+    or a filter without notch-flow states."""
+    if th.detector != "cusum" or not all(n in out.config.calibrate for n in NOTCH_STATES):
+        return None
+    return notch_jump(out, th, notch_armed(out, th, ready), int(round(th.warmup_s / th.sample_dt_s))).max(axis=1)
 
 
 def _glr_maxima(out, th: Thresholds):
@@ -413,6 +426,9 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     # ---- CUSUM thresholds for the stated false-alarm level, from the same healthy runs
     st = _healthy_statistics(dev, sd, reg, hidden, ready, long_stroke, th1)
     maxima = {h: g.max(axis=1) for h, g in st.items()}
+    notch = [p[1][7] for p in parts]
+    if all(m is not None for m in notch):  # a sixth test: the level is split over six
+        maxima[NOTCH_TRIGGER] = np.concatenate(notch)
     q = 1.0 - (fa_level if trigger_level is None else trigger_level) / len(maxima)
     h = {k: max(level_threshold(v, q), H_FLOOR) for k, v in maxima.items()}
     th = replace(th1, h=h, false_alarm_level=fa_level, trigger_level=trigger_level,
@@ -518,7 +534,11 @@ def describe(th: Thresholds) -> str:
                 f" (h for CUSUM alarms at {th.trigger_level:g} per run; an alarm stands when the bank "
                 f"confirms it by {th.confirm_nats:g} nats)") + f"; for the {th.position_sensor} position sensor", "",
              "| hypothesis | h [sigma s] |", "|---|---|"]
-    lines += [f"| {k} | {v:.3g} |" for k, v in th.h.items()]
+    lines += [f"| {k} | {v:.3g} |" for k, v in th.h.items() if k != NOTCH_TRIGGER]
+    if NOTCH_TRIGGER in th.h:
+        lines += ["", f"notch-flow trigger: a notch-flow calibration state jumping by more than "
+                  f"{th.h[NOTCH_TRIGGER] + th.drift:.3g} of its std within {th.notch_jump_window_s:g} s "
+                  f"(h = {th.h[NOTCH_TRIGGER]:.3g} sigma beyond the drift); the bank names the fault"]
     alone = [p for p in th.sigma if th.sd_weight(p) == 0.0]
     lines += ["", "change residual d_p = (estimate - baseline) / sqrt((w sd_filter)^2 + sigma^2), w per parameter: "
               + ", ".join(f"{p} {th.sd_weight(p):g}" for p in th.sigma)

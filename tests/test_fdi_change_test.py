@@ -473,6 +473,7 @@ def test_internal_leak_test_is_held_where_the_chamber_pressures_balance(monkeypa
     from fdi import detect
     from fdi.detect import BALANCE_MARGIN_PA, PARAMS, held, statistics
     from fdi.synth import lpm
+    from fdi.ukf import FilterConfig
 
     th = Thresholds.shipped()
     T = 8000
@@ -485,7 +486,7 @@ def test_internal_leak_test_is_held_where_the_chamber_pressures_balance(monkeypa
     mean[0, 7000:, 7] = lpm(0.02)
     std = np.zeros_like(mean)
     std[0, :, 7:11] = [lpm(0.05), lpm(0.05), lpm(0.05), 2e-3]
-    out = SimpleNamespace(t=t, u=np.full((1, T), -3.0), mean=mean, std=std, inp=None)
+    out = SimpleNamespace(t=t, u=np.full((1, T), -3.0), mean=mean, std=std, inp=None, config=FilterConfig())
     h = held(out, th)
     assert np.array_equal(np.flatnonzero(h[0, list(PARAMS).index("K_int")]), np.arange(3000, 7000))
     assert not h[0, [i for i, p in enumerate(PARAMS) if p != "K_int"]].any()

@@ -333,7 +333,8 @@ def test_thresholds_file_round_trip_and_rule(tmp_path):
     from fdi.thresholds import to_toml
     th = Thresholds.shipped()
     assert "GSA" in th.source
-    assert set(th.h) == {"K_int", "K_extA", "K_extB", "offset+", "offset-"}
+    # the five CUSUMs and, since session 25, the notch-flow trigger
+    assert set(th.h) == {"K_int", "K_extA", "K_extB", "offset+", "offset-", "notch_flow"}
     for p_, s in th.sigma.items():
         assert len(s) == len(REGIMES) and all(v > 0 for v in s)
         assert any(th.votes[p_])
@@ -535,8 +536,10 @@ def test_vote_rules_follow_the_sensitivity_studies():
         th, rep = T.compute_thresholds(plant, N_leak=4, N_nuisance=4, vote_rule=rule, run_length_s=4.0,
                                        trigger_level=trigger)
         # h is set for the trigger level: at most that fraction of the study's own healthy runs
-        # alarms (each h is at least the empirical 1 - level/5 quantile of its maxima)
+        # alarms (each h is at least the empirical 1 - level/6 quantile of its maxima: the five
+        # CUSUMs and the notch-flow trigger, whose h the same studies set)
         assert th.trigger_level == trigger and rep["healthy_trigger_fraction"] <= trigger
+        assert "notch_flow" in th.h and "notch_flow" in rep["healthy_maxima_quantiles"]
         assert f"CUSUM alarms at {trigger:g} per run" in T.describe(th)
         for p_, votes in th.votes.items():
             if rule == "detectable":
