@@ -668,8 +668,10 @@ def statistics(out: FilterOutput, th: Thresholds, baseline=None,
     """CUSUM statistic per hypothesis on its change residual, name -> (B, T); held where
     the residual does not vote and where pinned pressures hide its parameter (:func:`held`);
     the drift of each test from :func:`cusum_drift` (larger for K_int and the offset in long
-    strokes). ``start``: (B,) samples at which each run's tests restart from 0 (after a
-    withdrawn alarm, :func:`fdi.isolate.isolate`); never before the warm-up."""
+    strokes). With the notch-flow trigger (:func:`uses_notch_trigger`) also its statistic under
+    :data:`NOTCH_TRIGGER` (:func:`notch_jump`, armed by :func:`notch_armed`). ``start``: (B,)
+    samples at which each run's tests restart from 0 (after a withdrawn alarm,
+    :func:`fdi.isolate.isolate`); never before the warm-up."""
     dt = sample_step(out.t)
     warm = int(round(th.warmup_s / dt))
     if start is not None:
@@ -707,8 +709,8 @@ def notch_jump(out: FilterOutput, th: Thresholds, armed: np.ndarray, start=0) ->
     """The notch-flow trigger's statistic (B, T) [sigma]: the largest jump of a notch-flow
     calibration state of the detection filter (:data:`NOTCH_STATES`) over the last
     ``th.notch_jump_window_s``, in its own posterior std at the window's start, less
-    ``th.drift``, and 0 below that; 0 where not ``armed`` (B, T) and before ``start`` + the window
-    (a sample, or one per run (B,)). It alarms above ``th.h[NOTCH_TRIGGER]``.
+    ``th.drift``, and 0 below that; 0 where not ``armed`` (B, T; :func:`notch_armed`) and before
+    ``start`` + the window (a sample, or one per run (B,)). It alarms above ``th.h[NOTCH_TRIGGER]``.
 
     Why: in a steady stroke a fault that begins changes the flow balance as a notch-flow error
     does, and the filter puts the change where its covariance is largest, often on the notch
