@@ -701,8 +701,12 @@ def notch_armed(out: FilterOutput, th: Thresholds, ready: np.ndarray) -> np.ndar
 def uses_notch_trigger(out: FilterOutput, th: Thresholds) -> bool:
     """Whether the notch-flow trigger runs: the thresholds have its h, the likelihood bank names
     what it finds (it is no fault hypothesis) and the detection filter has notch-flow states."""
-    return (NOTCH_TRIGGER in th.h and th.isolation == "likelihood"
-            and all(n in out.config.calibrate for n in NOTCH_STATES))
+    return NOTCH_TRIGGER in th.h and th.isolation == "likelihood" and has_notch_states(out)
+
+
+def has_notch_states(out: FilterOutput) -> bool:
+    """Whether the filter that made ``out`` estimates the notch flows (:data:`NOTCH_STATES`)."""
+    return all(n in out.config.calibrate for n in NOTCH_STATES)
 
 
 def notch_jump(out: FilterOutput, th: Thresholds, armed: np.ndarray, start=0) -> np.ndarray:

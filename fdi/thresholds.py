@@ -41,8 +41,8 @@ import numpy as np
 
 from sam import P, Plant
 
-from .detect import (HYPOTHESES, MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, NOTCH_STATES, NOTCH_TRIGGER, PARAMS, REGIMES,
-                     Thresholds, change_spread, cusum_drift, held, long_stroke_mask, notch_armed, notch_jump,
+from .detect import (HYPOTHESES, MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, NOTCH_TRIGGER, PARAMS, REGIMES, Thresholds,
+                     change_spread, cusum_drift, has_notch_states, held, long_stroke_mask, notch_armed, notch_jump,
                      own_baseline, regimes)
 from .synth import POSITION_SENSORS, random_input, simulate_runs
 from .ukf import preset, run_filter
@@ -217,7 +217,7 @@ def _notch_maxima(out, th: Thresholds, ready) -> np.ndarray | None:
     """(n,) per-run maxima of the notch-flow trigger's statistic (fdi.detect.notch_jump) of the
     healthy runs in ``out``, armed as fdi.detect.statistics arms it; None for the GLR detector
     or a filter without notch-flow states."""
-    if th.detector != "cusum" or not all(n in out.config.calibrate for n in NOTCH_STATES):
+    if th.detector != "cusum" or not has_notch_states(out):
         return None
     return notch_jump(out, th, notch_armed(out, th, ready), int(round(th.warmup_s / th.sample_dt_s))).max(axis=1)
 
