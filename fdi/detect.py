@@ -19,7 +19,8 @@ the K_int and offset tests count only large excursions (``Thresholds.long_stroke
 is stated per healthy run of ``Thresholds.run_length_s`` (a longer recording has more
 chances). A sixth alarm source, the notch-flow trigger (:func:`notch_jump`, session 25), alarms
 when a notch-flow calibration state of the filter jumps by several of its own std: a fault that
-begins in a steady stroke often moves those states before its own. sigma, the votes, the confusable pairs and h come from the sensitivity studies of
+begins in a steady stroke often moves those states before its own. sigma, the votes, the
+confusable pairs and h come from the sensitivity studies of
 :mod:`fdi.thresholds` (docs/fdi.md). A model-fit alarm on the weighted NIS flags faults that no
 parameter explains.
 
