@@ -61,8 +61,10 @@ REFERENCE_S = 4.0  #: s, length of the healthy reference recording of ``--refere
 #: chunks are not mixed in); "t": healthy runs of the thresholds' run_length_s (session 11);
 #: "u": every alarm judged by the bank, withdrawn unless confirmed (conf_k, session 14); "w":
 #: no fault named on an end stop where it cannot act, and the confirmation bank with the
-#: calibration uncertain (session 15; "v" had the first alone)
-CHUNK_VERSION = "w"
+#: calibration uncertain (session 15; "v" had the first alone); "x": the filter's random walks
+#: held while the piston rests on an end stop and a diverged mean restored (session 26), after
+#: session 25's notch-flow trigger, which changed the decisions without a new tag
+CHUNK_VERSION = "x"
 #: how each position sensor is simulated (fdi.synth.POSITION_SENSORS), for metrics.md
 POSITION_SENSOR_TEXT = {"encoder": "the joint angle from the quantised encoder",
                         "linear": f"x from a linear transducer, white noise {POSITION_SENSORS['linear']['x_noise'] * 1e6:g} um"}

@@ -44,12 +44,13 @@ import numba
 import numpy as np
 
 from sam import P, S, step_batch_inplace, stroke_ends
+from sam.geometry import piston_position
 from sam.views import matrix, row
 from sam.hydraulics import leak_coefficient
 from sam.hydraulics import leak_lpm as _leak_lpm
 from sam.measurement import ENCODER_RESOLUTION_RAD
 
-from .strokes import long_strokes
+from .strokes import directions, long_strokes
 
 N_MODEL = 7
 #: Augmented states beyond the model state, and the parameter each one drives.
@@ -77,6 +78,14 @@ SCALE = np.array([
     1e-2,              # offset: % of travel
     1e3,               # F_d: kN
 ])
+
+#: The largest |state| in its internal unit (SCALE) that a filter's mean may reach: 1e6 MPa,
+#: 10 km/s, 100 m of bristle deflection, 1e6 L/min. Beyond it the filter has diverged, and its
+#: last sane mean is restored with P0 (``state_resets``), as for a non-finite one. Why not only
+#: non-finite: measured (session 26), a bank filter of a 3-minute healthy recording that had
+#: lost p_B below 0 ran on with v = 9e222 m/s, finite, reset its covariance 733 times and never
+#: its mean; its innovation log-likelihood overflowed to -inf.
+MAX_SCALED_STATE = 1e6
 
 #: Measurement kinds of the position channel.
 POS_X, POS_THETA = 0, 1
@@ -161,6 +170,21 @@ class FilterConfig:
     #: fault that begins inside a long stroke still moves its estimate.
     calib_hold_after_s: float | None = 2.0
     calib_hold_band_V: float = 0.3  #: V: the input's hold band for ``calib_hold_after_s``
+    #: s: once the input has rested (within ``calib_hold_band_V``) with the measured piston within
+    #: ``hold_on_stop_margin_m`` of an end stop for this long without a break, the random walk of
+    #: the fault AND the calibration states stops until either ends (:func:`resting_on_stop`;
+    #: None: never). Why: the piston pressed on a stop with the spool at null shows none of them
+    #: but through the null leakage, and their walks let them wander along the null balance
+    #: (measured, session 26, a 3-minute healthy long-cycle recording, 548 kg: an 8 s rest on the
+    #: retracted stop took the offset from +0.8 to +2.2 % and K_int from 0.36 to 1.0 L/min; at the
+    #: next stroke they snapped back, K_int's test alarmed and the bank confirmed an offset). They
+    #: still learn from what the data say there, at the variance they had when the rest began.
+    #: The detector's tests are held there anyway (fdi.detect.HELD_ON_STOP, held_on_stop).
+    hold_on_stop_s: float | None = 2.0
+    #: m: "pressed on an end stop" for ``hold_on_stop_s``: 3 encoder pulses at the retracted stop,
+    #: 10 std of the linear sensor. Not the 1 mm of ``stop_margin_m``: a light boom that creeps
+    #: off the stop under the null leakage (0.4 mm/s, measured) shows the offset by that creep.
+    hold_on_stop_margin_m: float = 1e-4
     #: per-parameter (name, p0, q) overrides of p0_calib/q_calib. The load mass is
     #: unknown (0-800 kg around a nominal 494 kg): relative std 0.25, 0.05/sqrt(s).
     #: B_eff: Table 1's +-10 % as its prior, a slow walk of 0.5 %/sqrt(s).
@@ -575,11 +599,25 @@ def _restrict_stop_gain(Kg, Pxz, Sm, learn, Spp):
             Kg[j, 2] = 0.0
 
 
+@_jit_inline
+def _fill_nan_from(k, b, out_z, out_sd, out_nu, out_nis, out_ll):
+    """Row b of the filter's outputs is NaN from sample k on (the run stopped there)."""
+    for t in range(k, out_z.shape[1]):
+        out_nis[b, t] = np.nan
+        out_ll[b, t] = np.nan
+        for c in range(out_nu.shape[2]):
+            out_nu[b, t, c] = np.nan
+        for j in range(out_z.shape[2]):
+            out_z[b, t, j] = np.nan
+            out_sd[b, t, j] = np.nan
+
+
 @numba.njit(cache=True)
 def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind, Wm, Wc, lam, act, n_act,
          clip_leaks, project_mean, project_internal, constraint_mode, truncate_cov, truncate_min_mass,
          freeze_k, freeze_mask, freeze_sd, symmetrise, nis_alpha, nis_limit, jitter, dt, n_sub,
-         out_z, out_sd, out_nu, out_nis, counts, out_ll, n_steps, q_gate, gate_mask, stop_gate, stop_learn):
+         out_z, out_sd, out_nu, out_nis, counts, out_ll, n_steps, q_gate, gate_group, stop_gate, stop_learn,
+         slot):
     """Run B filters over T samples.
 
     z0 (B,n) scaled initial means; P0 (B,n,n); Qd (n,n) scaled process noise per
@@ -593,7 +631,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     out_ll (B,T) innovation log-likelihood of each sample in scaled units,
     log N(nu; 0, S) = -(nu^T S^-1 nu + log det S + m log 2 pi) / 2 (0 where nothing was measured);
     n_steps (B,) samples to filter per run, NON-INCREASING in b: from sample n_steps[b] on, run b
-    is no longer propagated (its outputs are left as given), so that runs of different lengths
+    is no longer propagated (its outputs are NaN from there), so that runs of different lengths
     padded into one batch cost only their own length (the active runs are a prefix of the batch).
     act (B, n), n_act (B,): filter b's unscented transform runs over its n_act[b] states
     act[b, :n_act[b]] (in increasing order, the model states first); the others are HELD,
@@ -601,6 +639,10 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     weights of n_act[b] states.
     stop_gate (B, T) bool: the measured piston is on an end stop; there the position channel's
     gain is restricted to the states with stop_learn (n,) True (:func:`_restrict_stop_gain`).
+    q_gate (B, T, G), gate_group (n,): state j's random walk at sample k of run b is scaled by
+    q_gate[b, k, gate_group[j]] (always on where gate_group[j] < 0; :func:`_random_walk_gates`).
+    slot (B,): filter b writes row slot[b] of out_z, out_sd, out_nu, out_nis and out_ll, so that
+    the caller gets them in its own order without copying them back (counts stay in filter order).
     """
     B, n = z0.shape
     T = u.shape[1]
@@ -652,6 +694,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
     for k in range(T):
         while nA > 0 and n_steps[nA - 1] <= k:
             nA -= 1
+            _fill_nan_from(k, slot[nA], out_z, out_sd, out_nu, out_nis, out_ll)
         if nA == 0:
             break
         if k == freeze_k:  # calibration states become known constants from here on
@@ -724,11 +767,12 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                         a = wi * dev[i, j]
                         for l in range(min(j + 1, N_MODEL)):
                             Pm[b, j, l] += a * dev[i, l]
-                gk = q_gate[b, k]
                 for j in range(n):
                     for l in range(j + 1):
                         acc = Pm[b, j, l]
-                        qv = Qd[j, l] * gk if gate_mask[j] else Qd[j, l]
+                        qv = Qd[j, l]
+                        if gate_group[j] >= 0:
+                            qv *= q_gate[b, k, gate_group[j]]
                         Pm[b, j, l] = acc + qv
                         Pm[b, l, j] = acc + qv
         # ---------------- update
@@ -747,8 +791,8 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
             if nvalid < m:
                 counts[b, 0] += 1
             for c in range(m):
-                out_nu[b, k, c] = np.nan
-            out_ll[b, k] = 0.0
+                out_nu[slot[b], k, c] = np.nan
+            out_ll[slot[b], k] = 0.0
             if nvalid > 0:
                 q = 0
                 for c in range(m):
@@ -777,7 +821,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                 if ok:
                     for c in range(mv):
                         innov[c] = y[b, k, idx[c]] - zp[c]
-                        out_nu[b, k, idx[c]] = innov[c] / math.sqrt(Sm[c, c])
+                        out_nu[slot[b], k, idx[c]] = innov[c] / math.sqrt(Sm[c, c])
                     _chol_solve(Ls, innov, w, ysol, mv)
                     nis = 0.0
                     for c in range(mv):
@@ -785,7 +829,7 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                     logdet = 0.0
                     for c in range(mv):
                         logdet += 2.0 * math.log(Ls[c, c])
-                    out_ll[b, k] = -0.5 * (nis + logdet + mv * LOG_2PI)
+                    out_ll[slot[b], k] = -0.5 * (nis + logdet + mv * LOG_2PI)
                     # K = Pxz S^-1: S^-1 from mv solves (not one per state: n >> mv)
                     for e in range(mv):
                         for c in range(mv):
@@ -843,11 +887,11 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                     for j in range(N_MODEL, N_MODEL + 3):
                         if z[b, j] < 0.0:
                             z[b, j] = 0.0
-            finite = True
+            sane = True  # finite, and within MAX_SCALED_STATE of 0 (False for NaN too)
             for j in range(n):
-                if not math.isfinite(z[b, j]):
-                    finite = False
-            if not finite:
+                if not abs(z[b, j]) <= MAX_SCALED_STATE:
+                    sane = False
+            if not sane:
                 for j in range(n):
                     z[b, j] = z_good[b, j]
                 Pm[b, :, :] = P0[b]
@@ -862,14 +906,14 @@ def _run(z0, P0, Qd, Rd, u, y, pS, base, scale, param_cols, param_rel, pos_kind,
                     Pm[b, j, j] = max(Pm[b, j, j], P0[b, j, j])
                 counts[b, 2] += 1
                 ewnis[b] = float(m)
-            out_nis[b, k] = ewnis[b]
+            out_nis[slot[b], k] = ewnis[b]
             for j in range(n):
-                out_z[b, k, j] = z[b, j]
-                out_sd[b, k, j] = math.sqrt(max(Pm[b, j, j], 0.0))
+                out_z[slot[b], k, j] = z[b, j]
+                out_sd[slot[b], k, j] = math.sqrt(max(Pm[b, j, j], 0.0))
             if project_mean:  # reported leak estimates are non-negative
                 for j in range(N_MODEL, N_MODEL + 3):
-                    if out_z[b, k, j] < 0.0:
-                        out_z[b, k, j] = 0.0
+                    if out_z[slot[b], k, j] < 0.0:
+                        out_z[slot[b], k, j] = 0.0
 
 
 # ---------------------------------------------------------------- Python face
@@ -961,8 +1005,6 @@ def initial_mean(inp: FilterInput, cfg: "FilterConfig | None" = None) -> np.ndar
     """Scaled initial means from the first finite measurements: the filter starts at
     the measured pressures and position, at rest, with healthy fault parameters and
     zero calibration errors."""
-    from sam.geometry import piston_position
-
     cfg = FilterConfig() if cfg is None else cfg
     B = inp.u.shape[0]
     n = n_states(cfg)
@@ -1056,13 +1098,13 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     order = slice(None) if n_steps is None else np.argsort(-steps, kind="stable")
     if not isinstance(order, slice) and np.array_equal(order, np.arange(B)):
         order = slice(None)  # already in order (e.g. a bank's hypotheses of one run): no copies
-    fill = np.empty if n_steps is None else (lambda shape: np.full(shape, np.nan))
-    out_z = fill((B, T, n))
-    out_sd = fill((B, T, n))
-    out_nu = fill((B, T, m))
-    out_nis = fill((B, T))
+    # every sample is written by the kernel (NaN after a run's n_steps): no fill here
+    out_z = np.empty((B, T, n))
+    out_sd = np.empty((B, T, n))
+    out_nu = np.empty((B, T, m))
+    out_nis = np.empty((B, T))
     counts = np.zeros((B, 4), dtype=np.int64)
-    out_ll = fill((B, T))
+    out_ll = np.empty((B, T))
     freeze_k = -1 if cfg.freeze_calib_s is None else int(round(cfg.freeze_calib_s / inp.dt))
     freeze_mask = np.zeros(n, dtype=np.bool_)
     for i, name in enumerate(cfg.calibrate):
@@ -1073,7 +1115,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     P0 = np.broadcast_to(P0, (B, n, n))
     if held.any() and np.any((P0 != 0.0) & held[:, :, None] & ~held[:, None, :]):
         raise ValueError("run_filter: a held state has prior covariance with a free one (P0)")
-    q_gate, gate_mask = _calibration_hold(inp, cfg, n)
+    q_gate, gate_group = _random_walk_gates(inp, cfg, n)
     stop_gate, stop_learn = _stop_gain_gate(inp, cfg, n)
     _run(np.ascontiguousarray(z0[order], dtype=float), np.ascontiguousarray(P0[order], dtype=float), Qd, Rd,
          np.ascontiguousarray(inp.u[order], dtype=float), np.ascontiguousarray(y[order]),
@@ -1083,14 +1125,14 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
          _CONSTRAINTS[cfg.constraint], bool(cfg.truncate_cov), float(cfg.truncate_min_mass),
          freeze_k, freeze_mask, float(cfg.freeze_sd_factor), bool(cfg.symmetrise),
          float(nis_alpha), float(nis_limit), float(cfg.jitter), float(inp.dt), model_substeps(inp.dt),
-         out_z, out_sd, out_nu, out_nis, counts, out_ll, steps[order], q_gate[order], gate_mask,
-         stop_gate[order], stop_learn)
-    if not isinstance(order, slice):  # results in the caller's order
-        back = np.argsort(order)
-        out_z, out_sd, out_nu, out_nis, counts, out_ll = (
-            a[back] for a in (out_z, out_sd, out_nu, out_nis, counts, out_ll))
+         out_z, out_sd, out_nu, out_nis, counts, out_ll, steps[order], q_gate[order], gate_group,
+         stop_gate[order], stop_learn, np.arange(B, dtype=np.int64)[order])
+    if not isinstance(order, slice):  # the counts in the caller's order (the outputs already are)
+        counts = counts[np.argsort(order)]
+    out_z *= scale  # SI units, in place: these arrays are the filter's own
+    out_sd *= scale
     return FilterOutput(
-        t=np.arange(T) * inp.dt, mean=out_z * scale, std=out_sd * scale, nu=out_nu, nis=out_nis,
+        t=np.arange(T) * inp.dt, mean=out_z, std=out_sd, nu=out_nu, nis=out_nis,
         n_nan=counts[:, 0], n_jitter=counts[:, 1], n_cov_reset=counts[:, 2], n_state_reset=counts[:, 3],
         config=cfg, u=inp.u, ll=out_ll, inp=inp,
     )
@@ -1142,6 +1184,40 @@ def _calibration_hold(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.n
     mask[N_AUG:N_AUG + len(cfg.calibrate)] = True
     held = long_strokes(inp.u, inp.dt, cfg.calib_hold_band_V, cfg.calib_hold_after_s)
     return np.ascontiguousarray(np.where(held, 0.0, 1.0)), mask
+
+
+def _random_walk_gates(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The process-noise gates of the kernel: (B, T, 2) factors on the random walk, [..., 0] the
+    calibration states' (0 in long strokes, :func:`_calibration_hold`, and resting on a stop),
+    [..., 1] the fault states' (0 resting on a stop, :func:`resting_on_stop`), and (n,) the gate
+    of each state (-1: none, its random walk always runs)."""
+    q_cal, cal_mask = _calibration_hold(inp, cfg, n)
+    group = np.where(cal_mask, 0, -1).astype(np.int64)
+    q_fault = np.ones_like(q_cal)
+    if cfg.hold_on_stop_s is not None:
+        group[list(FAULT_STATES)] = 1
+        group[N_AUG:N_AUG + len(cfg.calibrate)] = 0
+        q_fault = np.where(resting_on_stop(inp, cfg), 0.0, 1.0)
+        q_cal = q_cal * q_fault
+    return np.ascontiguousarray(np.stack([q_cal, q_fault], axis=-1)), group
+
+
+def resting_on_stop(inp: FilterInput, cfg: FilterConfig) -> np.ndarray:
+    """(B, T) bool: where the input has been in ``calib_hold_band_V`` and the measured piston (x,
+    or theta mapped to x) within ``cfg.hold_on_stop_margin_m`` of an end stop, both without a
+    break, for ``cfg.hold_on_stop_s`` or longer: where :func:`_random_walk_gates` stops the random
+    walks. Causal; a missing position is not on a stop."""
+    d, _ = directions(inp.u, inp.dt, cfg.calib_hold_band_V)
+    pressed = d == 0
+    b, k = np.nonzero(pressed)  # the position is looked at only at rest (a tune's batch rests little)
+    p = inp.params[b]
+    x = inp.pos[b, k]
+    if inp.pos_kind != POS_X:
+        x = piston_position(x, p[:, P.L_1], p[:, P.L_2], p[:, P.L_3])
+    pressed[b, k] = near_end_stop(x[:, None], p, cfg.hold_on_stop_margin_m)[:, 0]
+    steps = np.arange(pressed.shape[1])[None, :]
+    last_off = np.maximum.accumulate(np.where(pressed, -1, steps), axis=1)
+    return pressed & ((steps - last_off - 1) * inp.dt >= cfg.hold_on_stop_s - 1e-9)
 
 
 def _stop_gain_gate(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -280,6 +280,57 @@ def test_calibration_random_walk_stops_in_long_strokes(plant_vector):
     assert off.std[0, -1, j] > on.std[0, -1, j]
 
 
+def test_random_walks_stop_resting_on_an_end_stop(plant_vector):
+    """FilterConfig.hold_on_stop_s: once the input has rested in its hold band with the measured
+    piston within hold_on_stop_margin_m of an end stop for 2 s, the fault and calibration states'
+    random walk stops; F_d keeps its walk. A machine resting on the retracted stop for 4 s: the
+    gate opens exactly at 2 s, both filters are identical before it, and after it the offset's
+    and K_int's std only shrink, while without the hold they grow by their walk. The same rest
+    mid-stroke is never gated, nor is a rest on the stop that a stroke breaks."""
+    from fdi.ukf import I_FD, I_KINT, I_OFFSET, N_AUG, _random_walk_gates, resting_on_stop
+
+    T = 4001
+    u = np.zeros(T)
+    on_stop = simulate_runs(plant_vector[None], u, DT, seed=3, x0=0.0)
+    cfg = FilterConfig()
+    assert cfg.hold_on_stop_s == 2.0
+    rest = resting_on_stop(on_stop.inp, cfg)
+    np.testing.assert_array_equal(rest[0], np.arange(T) * DT >= 2.0 - 1e-9)
+    gate, group = _random_walk_gates(on_stop.inp, cfg, N_AUG + len(cfg.calibrate))
+    assert group[I_KINT] == group[I_OFFSET] == 1 and group[I_FD] == -1
+    assert set(group[N_AUG:]) == {0}
+    np.testing.assert_array_equal(gate[0, :, 1] == 0.0, rest[0])
+    k0 = int(np.argmax(rest[0]))
+    on = run_filter(on_stop.inp, cfg)
+    off = run_filter(on_stop.inp, cfg.with_(hold_on_stop_s=None))
+    assert np.max(np.abs(on.mean[0, :k0] - off.mean[0, :k0]) / state_scale(cfg)) < 1e-12
+    for j in (I_KINT, I_OFFSET):
+        assert np.all(np.diff(on.std[0, k0:, j]) <= 1e-12 * on.std[0, k0, j])
+        assert off.std[0, -1, j] > 1.05 * on.std[0, -1, j]
+    mid = simulate_runs(plant_vector[None], u, DT, seed=3, x0=0.2)
+    assert not resting_on_stop(mid.inp, cfg).any()
+    broken = replace(on_stop.inp, u=np.where((np.arange(T) >= 1500) & (np.arange(T) < 1600), 2.0, 0.0)[None])
+    np.testing.assert_array_equal(resting_on_stop(broken, cfg)[0], np.arange(T) >= 1600 + 2000)
+
+
+def test_a_diverged_mean_is_restored(plant_vector):
+    """A mean beyond MAX_SCALED_STATE in its unit is a divergence even when finite: one wild
+    pressure sample (1e15 Pa, which replay would refuse) throws the update far out, and the filter
+    restores its last sane mean with P0 (counted as a state reset) instead of running on from it.
+    Every reported mean stays within the bound and the filter is back on the data 1 s later."""
+    from fdi.ukf import MAX_SCALED_STATE
+
+    runs = _runs(plant_vector, T=2001, seed=4)
+    clean = run_filter(runs.inp)
+    pA = runs.inp.pA.copy()
+    pA[0, 500] = 1e15
+    out = run_filter(replace(runs.inp, pA=pA))
+    assert clean.n_state_reset[0] == 0 and out.n_state_reset[0] >= 1
+    assert np.all(np.abs(out.mean / state_scale(out.config)) <= MAX_SCALED_STATE)
+    late = slice(1500, None)
+    assert np.max(np.abs(out.mean[0, late, 0] - clean.mean[0, late, 0])) < 0.1e6  # p_A within 0.1 MPa
+
+
 def test_soft_freeze_shrinks_calibration_std(plant_vector):
     """freeze_sd_factor > 0: at the freeze the (non-free) calibration states keep their mean,
     their std is multiplied by the factor, and from then on they have no process noise."""
