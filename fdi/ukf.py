@@ -172,7 +172,7 @@ class FilterConfig:
     calib_hold_band_V: float = 0.3  #: V: the input's hold band for ``calib_hold_after_s``
     #: s: once the input has rested (within ``calib_hold_band_V``) with the measured piston within
     #: ``hold_on_stop_margin_m`` of an end stop for this long without a break, the random walk of
-    #: the fault AND the calibration states stops until either ends (:func:`resting_on_stop`;
+    #: the fault AND the calibration states stops until either ends (:func:`pressed_on_stop`;
     #: None: never). Why: the piston pressed on a stop with the spool at null shows none of them
     #: but through the null leakage, and their walks let them wander along the null balance
     #: (measured, session 26, a 3-minute healthy long-cycle recording, 548 kg: an 8 s rest on the
@@ -1189,7 +1189,7 @@ def _calibration_hold(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.n
 def _random_walk_gates(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.ndarray, np.ndarray]:
     """The process-noise gates of the kernel: (B, T, 2) factors on the random walk, [..., 0] the
     calibration states' (0 in long strokes, :func:`_calibration_hold`, and resting on a stop),
-    [..., 1] the fault states' (0 resting on a stop, :func:`resting_on_stop`), and (n,) the gate
+    [..., 1] the fault states' (0 resting on a stop, :func:`pressed_on_stop`), and (n,) the gate
     of each state (-1: none, its random walk always runs)."""
     q_cal, cal_mask = _calibration_hold(inp, cfg, n)
     group = np.where(cal_mask, 0, -1).astype(np.int64)
@@ -1197,16 +1197,17 @@ def _random_walk_gates(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.
     if cfg.hold_on_stop_s is not None:
         group[list(FAULT_STATES)] = 1
         group[N_AUG:N_AUG + len(cfg.calibrate)] = 0
-        q_fault = np.where(resting_on_stop(inp, cfg), 0.0, 1.0)
+        q_fault = np.where(pressed_on_stop(inp, cfg), 0.0, 1.0)
         q_cal = q_cal * q_fault
     return np.ascontiguousarray(np.stack([q_cal, q_fault], axis=-1)), group
 
 
-def resting_on_stop(inp: FilterInput, cfg: FilterConfig) -> np.ndarray:
+def pressed_on_stop(inp: FilterInput, cfg: FilterConfig) -> np.ndarray:
     """(B, T) bool: where the input has been in ``calib_hold_band_V`` and the measured piston (x,
     or theta mapped to x) within ``cfg.hold_on_stop_margin_m`` of an end stop, both without a
     break, for ``cfg.hold_on_stop_s`` or longer: where :func:`_random_walk_gates` stops the random
-    walks. Causal; a missing position is not on a stop."""
+    walks. Causal; a missing position is not on a stop. (Not the detector's
+    :func:`fdi.detect.resting_on_stop`: that one reads the filter's estimate, within 1 mm, at once.)"""
     d, _ = directions(inp.u, inp.dt, cfg.calib_hold_band_V)
     pressed = d == 0
     b, k = np.nonzero(pressed)  # the position is looked at only at rest (a tune's batch rests little)

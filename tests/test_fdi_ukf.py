@@ -287,14 +287,14 @@ def test_random_walks_stop_resting_on_an_end_stop(plant_vector):
     gate opens exactly at 2 s, both filters are identical before it, and after it the offset's
     and K_int's std only shrink, while without the hold they grow by their walk. The same rest
     mid-stroke is never gated, nor is a rest on the stop that a stroke breaks."""
-    from fdi.ukf import I_FD, I_KINT, I_OFFSET, N_AUG, _random_walk_gates, resting_on_stop
+    from fdi.ukf import I_FD, I_KINT, I_OFFSET, N_AUG, _random_walk_gates, pressed_on_stop
 
     T = 4001
     u = np.zeros(T)
     on_stop = simulate_runs(plant_vector[None], u, DT, seed=3, x0=0.0)
     cfg = FilterConfig()
     assert cfg.hold_on_stop_s == 2.0
-    rest = resting_on_stop(on_stop.inp, cfg)
+    rest = pressed_on_stop(on_stop.inp, cfg)
     np.testing.assert_array_equal(rest[0], np.arange(T) * DT >= 2.0 - 1e-9)
     gate, group = _random_walk_gates(on_stop.inp, cfg, N_AUG + len(cfg.calibrate))
     assert group[I_KINT] == group[I_OFFSET] == 1 and group[I_FD] == -1
@@ -308,9 +308,9 @@ def test_random_walks_stop_resting_on_an_end_stop(plant_vector):
         assert np.all(np.diff(on.std[0, k0:, j]) <= 1e-12 * on.std[0, k0, j])
         assert off.std[0, -1, j] > 1.05 * on.std[0, -1, j]
     mid = simulate_runs(plant_vector[None], u, DT, seed=3, x0=0.2)
-    assert not resting_on_stop(mid.inp, cfg).any()
+    assert not pressed_on_stop(mid.inp, cfg).any()
     broken = replace(on_stop.inp, u=np.where((np.arange(T) >= 1500) & (np.arange(T) < 1600), 2.0, 0.0)[None])
-    np.testing.assert_array_equal(resting_on_stop(broken, cfg)[0], np.arange(T) >= 1600 + 2000)
+    np.testing.assert_array_equal(pressed_on_stop(broken, cfg)[0], np.arange(T) >= 1600 + 2000)
 
 
 def test_a_diverged_mean_is_restored(plant_vector):
