@@ -106,7 +106,8 @@ def _bench_isolation(plant, runs) -> None:
     print(f"tune work per run (simulation, filter, CUSUM, isolation; one core): healthy {th.run_length_s:g} s "
           f"{th_ / 50 * 1e3:.0f} ms, healthy 4 s {t4_ / 50 * 1e3:.0f} ms, faulty 4 s {tf_ / 50 * 1e3:.0f} ms -> "
           f"1000 runs of the tune's mix ~ {per_1000:.0f} s on one core, ~ {per_1000 / 2:.0f} s on 2 cores; "
-          f"1000 runs of 4 s ~ {per_1000_4s / 2:.0f} s on 2 cores")
+          f"1000 runs of 4 s ~ {per_1000_4s / 2:.0f} s on 2 cores if every faulty run were as slow as these "
+          f"(each alarms and runs the bank; the tune's own mix end to end: benchmarks/bench_tune.py)")
 
 
 def _bench_long_recording(plant, duration_s: float = 180.0) -> None:

@@ -44,6 +44,7 @@ from sam import P, Plant
 from .detect import (HYPOTHESES, MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, NOTCH_TRIGGER, PARAMS, REGIMES, Thresholds,
                      change_spread, cusum_drift, has_notch_states, held, long_stroke_mask, notch_armed, notch_jump,
                      own_baseline, regimes)
+from .montecarlo import pool_context
 from .synth import POSITION_SENSORS, random_input, simulate_runs
 from .ukf import preset, run_filter
 
@@ -275,7 +276,8 @@ def _evaluate(model, X, th, workers: int, chunk: int = 32, progress: str | None 
 
     if workers > 1:
         from concurrent.futures import ProcessPoolExecutor
-        with ProcessPoolExecutor(workers, initializer=_init, initargs=(_NOMINAL,)) as ex:
+        ctx = pool_context()
+        with ProcessPoolExecutor(workers, initializer=_init, initargs=(_NOMINAL,), mp_context=ctx) as ex:
             out = collect(ex.map)
     else:
         out = collect(map)

@@ -43,7 +43,7 @@ from sam.errors import output_folder
 from . import bound as onset_bound
 from . import calibration, isolate
 from .detect import HYPOTHESES, Thresholds, alarm_judging, statistics
-from .montecarlo import LONG_CYCLES, make_batch, make_reference_batch
+from .montecarlo import LONG_CYCLES, make_batch, make_reference_batch, pool_context
 from .synth import POSITION_SENSORS
 from .ukf import preset, run_filter
 
@@ -286,7 +286,7 @@ def _compute(plant: Plant, th: Thresholds, chunk_dir: Path, jobs: list, todo: li
             save(futs[fut], fut.result())
     elif workers > 1:
         from concurrent.futures import ProcessPoolExecutor, as_completed
-        with ProcessPoolExecutor(workers) as ex:
+        with ProcessPoolExecutor(workers, mp_context=pool_context()) as ex:
             futs = {ex.submit(_chunk_job, plant, th, *j[1:], reference, bound): j for j in todo}
             for fut in as_completed(futs):
                 save(futs[fut], fut.result())

@@ -294,6 +294,27 @@ def test_roc_curves_are_distinguishable(tmp_path, monkeypatch):
     assert len({str(ln.get_linestyle()) for ln in k_int}) == 1 and len({ln.get_color() for ln in k_int}) == 4
 
 
+def test_worker_pool_after_a_simulation_in_the_same_process(tmp_path):
+    """A forked worker of a process that has run the simulator's OpenMP loop is killed by libgomp,
+    and the tune's pool broke (BrokenProcessPool) when a Python session simulated before tuning.
+    The pools now spawn there (fdi.montecarlo.pool_context): two workers compute real chunks,
+    identical to the same chunks computed here."""
+    from fdi.montecarlo import make_batch, pool_context
+
+    plant, th = load_plant(), Thresholds.shipped()
+    make_batch(plant, 2, 1, duration=0.1)  # the simulator's parallel loop runs in this process
+    assert pool_context().get_start_method() == "spawn"
+    jobs = [("healthy", None, 0.0, 2, 1000, "standard"), ("K_extA_1", "K_extA", 1.0, 2, 510_000, "standard")]
+    th4 = replace(th, run_length_s=4.0)
+    tune._compute(plant, th4, tmp_path, jobs, jobs, "t", 2, None, False, False, False)
+    for job in jobs:
+        with np.load(tune._chunk_path(tmp_path, job, "t")) as got:
+            here = tune._chunk_job(plant, th4, *job[1:])
+            assert set(got.files) == set(here)
+            for key in here:
+                np.testing.assert_array_equal(got[key], here[key], err_msg=f"{job[0]} {key}")
+
+
 def test_help_states_the_workers_and_runs_rules():
     """--workers is a process pool (dask only with --scheduler); --runs states the fault-run
     rule of _jobs, checked against it."""
