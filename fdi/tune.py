@@ -234,6 +234,8 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
     healthy reference recording first; ``bound``: also the evidence at the known onset
     (:mod:`fdi.bound`; about three times the work). Each mode's chunks are tagged apart.
     ``force``: overwrite the files a tune writes in a folder that is not a tune folder.
+    ``workers`` > 1: a local process pool (:func:`fdi.montecarlo.pool_context` says when its
+    workers are spawned, and so when a calling script needs ``if __name__ == "__main__":``).
     Every refusal (``out_dir`` not a writable folder, made with other settings, holding the
     user's files; an unreachable ``scheduler``) is a UserError raised before any computing."""
     out_dir = Path(out_dir)
