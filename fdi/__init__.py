@@ -5,7 +5,8 @@
 * :mod:`fdi.strokes`: strokes of the valve input (the long-stroke rules of the filter and the detector);
 * :mod:`fdi.isolate`: isolation and size by likelihood (a bank of constrained filters);
 * :mod:`fdi.replay`: offline replay of a recording (``samfdi fdi replay``);
-* :mod:`fdi.signatures`, :mod:`fdi.tune`: signature tables, Monte Carlo thresholds.
+* :mod:`fdi.signatures`, :mod:`fdi.tune`: signature tables, Monte Carlo thresholds;
+* :mod:`fdi.rates`: a Monte Carlo's rates with exact intervals, and the verdict on a target rate.
 """
 
 from .detect import Diagnosis, Thresholds

@@ -86,7 +86,9 @@ def add_commands(subparsers) -> None:
     t.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
     t.add_argument("--runs", type=int, default=100, help="healthy runs N (default 100), each as long as the thresholds' "
                    "run_length_s (20 s for the shipped ones), and max(5, N // 2) more of 20-60 s extend/retract "
-                   "cycles; fault runs of 4 s: max(5, N // 5) per fault type and size")
+                   "cycles; fault runs of 4 s: max(5, N // 5) per fault type and size. Every rate comes with its exact "
+                   "95 %% interval; a case can show >= 95 %% only from 72 runs (N >= 360); N = 1000 (200 per case) tells "
+                   "a case at 90 %% or at 99 %% apart from 95 %%")
     t.add_argument("--workers", type=int, default=1,
                    help="local worker processes (a process pool; --scheduler runs on a dask cluster instead)")
     t.add_argument("--scheduler", help="dask scheduler address, e.g. tcp://host:8786")

@@ -41,7 +41,7 @@ from sam import Plant, UserError
 from sam.errors import output_folder
 
 from . import bound as onset_bound
-from . import calibration, isolate
+from . import calibration, isolate, rates
 from .detect import HYPOTHESES, Thresholds, alarm_judging, statistics
 from .montecarlo import LONG_CYCLES, make_batch, make_reference_batch, pool_context
 from .synth import POSITION_SENSORS
@@ -70,6 +70,9 @@ POSITION_SENSOR_TEXT = {"encoder": "the joint angle from the quantised encoder",
                         "linear": f"x from a linear transducer, white noise {POSITION_SENSORS['linear']['x_noise'] * 1e6:g} um"}
 LOAD_BINS = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))
 HYP = tuple(HYPOTHESES)
+#: the issue's target: each fault case detected and isolated within 1 s in at least this
+#: fraction of runs (judged on the point rate and, with :mod:`fdi.rates`, on its interval)
+TARGET_RATE = 0.95
 MANIFEST = "tune.json"  #: the settings the folder's chunks were made with (:func:`manifest`)
 #: what a tune writes besides chunks/ and the manifest: in a folder that is not a tune folder
 #: these are the user's own and are not overwritten without ``force``
@@ -473,7 +476,7 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
     chunk_dir = Path(out_dir) / "chunks"
     healthy = _load(chunk_dir, jobs, "healthy", tag)
     hmax = healthy["max"][:, :, 2].max(axis=1)  # per run: max over hypotheses of g/h
-    rates = _healthy_rates(healthy)
+    fa = _healthy_rates(healthy, th.false_alarm_level)
     scales = np.geomspace(0.25, 4, 17)
     roc = {"scale": scales.tolist(), "false_alarm": [float((hmax > s).mean()) for s in scales], "detection": {}}
     has_bound = "evidence" in healthy
@@ -490,19 +493,24 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
             ok_pre = d["max"][:, :, 0].max(axis=1)
             post = d["max"][:, :, 1].max(axis=1)
             roc["detection"][name] = [float(((post > s) & (ok_pre <= s)).mean()) for s in scales]
-    smallest, smallest_by_load, smallest_bound = _smallest_sizes(rows, has_bound)
+    smallest, smallest_by_load, smallest_bound, smallest_shown = _smallest_sizes(rows, has_bound)
     n_dec = sum(r["decisions_within_1s"] for r in rows)
     n_wrong = sum(r["wrong_decisions"] for r in rows)
-    metrics = {"false_alarm_rate": rates["false_alarm_rate"], "false_alarm_by_load": rates["false_alarm_by_load"],
-               "healthy_runs": rates["runs"], "trigger_rate": rates["trigger_rate"],
+    metrics = {"false_alarm_rate": fa["false_alarm_rate"], "false_alarm_by_load": fa["false_alarm_by_load"],
+               "healthy_runs": fa["runs"], "trigger_rate": fa["trigger_rate"],
+               **{k: fa[k] for k in ("false_alarms", "false_alarm_ci", "false_alarm_verdict")},
                "healthy_run_s": run_seconds(th, None), "fault_run_s": DURATION,
                "load_bins_kg": LOAD_BINS, "thresholds_source": th.source, "isolation": th.isolation, "rows": rows,
                "isolation_decisions_within_1s": n_dec, "wrong_isolation_decisions": n_wrong,
                "wrong_isolation_rate": n_wrong / n_dec if n_dec else float("nan"),
                "smallest_detected_and_isolated_95pct_within_1s": smallest,
-               "smallest_detected_and_isolated_95pct_within_1s_by_load": smallest_by_load, "roc": roc}
+               "smallest_detected_and_isolated_95pct_within_1s_by_load": smallest_by_load,
+               "smallest_shown_95pct_within_1s": smallest_shown, "roc": roc}
     if any(j[0] == "healthy_long" for j in jobs):
-        metrics["long_cycles"] = _healthy_rates(_load(chunk_dir, jobs, "healthy_long", tag))
+        long = _healthy_rates(_load(chunk_dir, jobs, "healthy_long", tag), th.false_alarm_level)
+        metrics["long_cycles"] = long
+        k, n = fa["false_alarms"] + long["false_alarms"], fa["runs"] + long["runs"]
+        metrics["all_healthy"] = {"runs": n, "false_alarm_rate": k / n, **_false_alarm_count(k, n, th.false_alarm_level)}
     if has_bound:
         metrics["bound"] = {"threshold_nats": bnd[0], "level": th.false_alarm_level, "margin_nats": bnd[1],
                             "healthy_runs": int(len(hmax)),
@@ -514,18 +522,27 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
     return metrics
 
 
-def _healthy_rates(d: dict) -> dict:
+def _healthy_rates(d: dict, level: float) -> dict:
     """The false-alarm figures of loaded healthy chunks ``d``: runs, false-alarm rate (runs with an
     alarm that stood: the bank confirmed it, when the chunks have the bank's verdicts; else any
-    alarm), the same per load third (NaN: no run there) and the trigger rate (runs with any
-    CUSUM alarm, confirmed or withdrawn)."""
+    alarm), its :func:`fdi.rates.interval` and :func:`fdi.rates.verdict` against the stated
+    false-alarm ``level``, the rate per load third (NaN: no run there) and the trigger rate (runs
+    with any CUSUM alarm, confirmed or withdrawn)."""
     trigger_runs = d["max"][:, :, 2].max(axis=1) > 1.0
     fa_runs = d["conf_k"] >= 0 if "conf_k" in d else trigger_runs
     lb = _load_bin(d["m_L"])
     return {"runs": int(len(fa_runs)), "false_alarm_rate": float(fa_runs.mean()),
+            **_false_alarm_count(int(fa_runs.sum()), len(fa_runs), level),
             "false_alarm_by_load": [float(fa_runs[lb == i].mean()) if (lb == i).any() else float("nan")
                                     for i in range(len(LOAD_BINS))],
             "trigger_rate": float(trigger_runs.mean())}
+
+
+def _false_alarm_count(k: int, n: int, level: float) -> dict:
+    """false_alarms (k), false_alarm_ci and false_alarm_verdict (<= ``level``) of k false alarms
+    in n healthy runs."""
+    return {"false_alarms": k, "false_alarm_ci": list(rates.interval(k, n)),
+            "false_alarm_verdict": rates.verdict(k, n, level, at_least=False)}
 
 
 def _fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
@@ -564,6 +581,8 @@ def _fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
         "detected_within_1s": float(within.mean()), "isolated_within_1s": float(isolated.mean()),
         "isolated_exclusive": float(exclusive.mean()), "alarm_before_onset": float(before.mean()),
         "mean_delay_s": float(delay.mean()) if delay.size else float("nan"),
+        "isolated_runs": int(isolated.sum()), "isolated_ci": list(rates.interval(isolated.sum(), len(first))),
+        "isolated_verdict": rates.verdict(isolated.sum(), len(first), TARGET_RATE),
         "isolated_by_load": [float(isolated[lb == i].mean()) if (lb == i).any() else float("nan")
                              for i in range(len(LOAD_BINS))],
         "wrong_isolation": float(wrong.sum() / decided.sum()) if decided.any() else float("nan"),
@@ -572,24 +591,27 @@ def _fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
     if bnd is not None:
         ok, iso = onset_bound.verdicts(d["evidence"], fault, *bnd)
         row.update({"bound_detectable": float(ok.mean()), "bound_isolable": float(iso.mean()),
+                    "bound_isolable_ci": list(rates.interval(iso.sum(), len(iso))),
                     "bound_median_nats": float(np.median(d["evidence"][:, onset_bound.HYPOTHESES.index(fault)]))})
     return row
 
 
 def _smallest_sizes(rows: list, has_bound: bool) -> tuple:
-    """({key: smallest |size| met}, {key: [per load third]}, {key: the bound's}) with keys
-    K_int, K_extA, K_extB, offset+, offset- (:func:`_smallest`; sizes as in FAULT_SIZES)."""
-    smallest, smallest_by_load, smallest_bound = {}, {}, {}
+    """({key: smallest |size| met}, {key: [per load third]}, {key: the bound's}, {key: smallest
+    |size| shown met by its interval}) with keys K_int, K_extA, K_extB, offset+, offset-
+    (:func:`_smallest`; sizes as in FAULT_SIZES)."""
+    smallest, smallest_by_load, smallest_bound, smallest_shown = {}, {}, {}, {}
     for fault in FAULT_SIZES:
         for sign in ((1, -1) if fault == "offset" else (1,)):
             mine = [r for r in rows if r["fault"] == fault and np.sign(r["size"]) == sign]
             key = fault if fault != "offset" else ("offset+" if sign > 0 else "offset-")
-            smallest[key] = _smallest(mine, lambda r: r["isolated_within_1s"])
+            smallest[key] = _smallest(mine, lambda r: r["isolated_within_1s"] >= TARGET_RATE)
+            smallest_shown[key] = _smallest(mine, lambda r: r["isolated_verdict"] == "met")
             if has_bound:
-                smallest_bound[key] = _smallest(mine, lambda r: r["bound_isolable"])
-            smallest_by_load[key] = [_smallest(mine, lambda r, b=b: r["isolated_by_load"][b])
+                smallest_bound[key] = _smallest(mine, lambda r: r["bound_isolable"] >= TARGET_RATE)
+            smallest_by_load[key] = [_smallest(mine, lambda r, b=b: r["isolated_by_load"][b] >= TARGET_RATE)
                                      for b in range(len(LOAD_BINS))]
-    return smallest, smallest_by_load, smallest_bound
+    return smallest, smallest_by_load, smallest_bound, smallest_shown
 
 
 def _write_json(path: Path, obj) -> None:
@@ -646,7 +668,10 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
              *([f"Held-out healthy runs of the issue's 20-60 s extend/retract cycles (random period, amplitude "
                 f"{LONG_CYCLES['amplitude_V'][0]:g}-{LONG_CYCLES['amplitude_V'][1]:g} V, phase and start position: "
                 "some long strokes end on an end stop, some reverse in mid-stroke; not in the threshold studies): "
-                + _healthy_line(m["long_cycles"], th, bins, likelihood), ""] if "long_cycles" in m else []),
+                + _healthy_line(m["long_cycles"], th, bins, likelihood), "",
+                f"All {m['all_healthy']['runs']} healthy runs: false-alarm rate "
+                + _false_alarm_text(m["all_healthy"], th), ""]
+               if "long_cycles" in m else []),
              f"Isolation decisions within 1 s of the onset (fault runs detected within 1 s): "
              f"{m['isolation_decisions_within_1s']}, of which wrong (named another fault hypothesis): "
              f"{m['wrong_isolation_decisions']}" + (f" = {wr:.3f}" if math.isfinite(wr) else ""), "",
@@ -657,12 +682,15 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
                 if likelihood else
                 "the first alarm names the fault; 'exclusive' = no other hypothesis alarmed within that second.")
              + " 'wrong isolation' = fraction of the decisions within 1 s of the onset ("
-             + ("the bank's" if likelihood else "the first alarm's") + ") that named another fault hypothesis.", ""]
-    cols = ["fault", "size", "runs", "within 1 s", "isolated", *([] if likelihood else ["exclusive"]),
+             + ("the bank's" if likelihood else "the first alarm's") + ") that named another fault hypothesis.", "",
+             *_interval_lines(m["rows"])]
+    cols = ["fault", "size", "runs", "within 1 s", "isolated", f"isolated: {rates.LEVEL * 100:g} % interval",
+            f"vs {TARGET_RATE * 100:g} %", *([] if likelihood else ["exclusive"]),
             "wrong isolation", "alarm before onset", "mean delay [s]", *(f"isolated {b}" for b in bins)]
     lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in m["rows"]:
         cells = [r["fault"], _row_size(r), str(r["runs"]), _f2(r["detected_within_1s"]), _f2(r["isolated_within_1s"]),
+                 _interval_text(r["isolated_ci"]), r["isolated_verdict"],
                  *([] if likelihood else [_f2(r["isolated_exclusive"])]), _f2(r["wrong_isolation"]),
                  _f2(r["alarm_before_onset"]), _f2(r["mean_delay_s"]), *(_f2(v) for v in r["isolated_by_load"])]
         lines.append("| " + " | ".join(cells) + " |")
@@ -670,7 +698,8 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
         m["smallest_detected_and_isolated_95pct_within_1s_by_load"]
     lines += ["", "Smallest size detected and isolated within 1 s in >= 95 % of runs (that size and every larger "
               "tested size; per load third about a third of the runs each; 'none': not even the largest):", ""]
-    lines += _size_table([("all loads", smallest)]
+    lines += _size_table([("all loads", smallest),
+                          (f"all loads, shown by the {rates.LEVEL * 100:g} % interval", m["smallest_shown_95pct_within_1s"])]
                          + [(b, {k: v[i] for k, v in by_load.items()}) for i, b in enumerate(bins)])
     if "bound" in m:
         lines += _bound_lines(m["rows"], m["bound"], smallest)
@@ -684,9 +713,31 @@ def _healthy_line(r: dict, th: Thresholds, bins: list, likelihood: bool) -> str:
     (:func:`_healthy_rates`: ``runs``, ``false_alarm_rate``, ``false_alarm_by_load``, ``trigger_rate``)."""
     return (f"{r['runs']} x {run_seconds(th, None):g} s; false-alarm rate (any alarm "
             f"{'that the bank confirmed ' if likelihood and th.confirm_nats > 0 else ''}per run): "
-            f"{r['false_alarm_rate']:.3f}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"
+            f"{_false_alarm_text(r, th)}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"
                                                                  for b, v in zip(bins, r["false_alarm_by_load"]))
             + f"; runs with any CUSUM alarm (confirmed or withdrawn): {r['trigger_rate']:.3f}")
+
+
+def _false_alarm_text(r: dict, th: Thresholds) -> str:
+    """A population's false-alarm rate with its count, interval and verdict against the stated level."""
+    return (f"{r['false_alarm_rate']:.3f} ({r['false_alarms']} of {r['runs']}; {rates.LEVEL * 100:g} % "
+            f"interval {_interval_text(r['false_alarm_ci'], 4)}; <= {th.false_alarm_level:g}: {r['false_alarm_verdict']})")
+
+
+def _interval_lines(rows: list) -> list:
+    """metrics.md's words on the rates' intervals, with the runs a case needs to show the target."""
+    need = rates.runs_to_show(TARGET_RATE)
+    few = min(r["runs"] for r in rows) < need
+    return [f"Each rate is k of n runs. Its {rates.LEVEL * 100:g} % interval is the exact (Clopper-Pearson) one, "
+            f"fdi/rates.py; 'vs {TARGET_RATE * 100:g} %' is 'met' where the whole interval lies above "
+            f"{TARGET_RATE * 100:g} %, "
+            "'not met' where it lies below, else 'undecided' at this many runs. Even with no miss, a case shows "
+            f"{TARGET_RATE * 100:g} % only from {need} runs on" + (" (more --runs)." if few else "."), ""]
+
+
+def _interval_text(ci: list, digits: int = 2) -> str:
+    """A rate's interval [low, high] for metrics.md: 'low-high' ('-' where nothing was measured)."""
+    return "-" if not all(math.isfinite(v) for v in ci) else f"{ci[0]:.{digits}f}-{ci[1]:.{digits}f}"
 
 
 def _row_size(r: dict) -> str:
@@ -707,23 +758,25 @@ def _bound_lines(rows: list, b: dict, ours: dict) -> list:
              *([f"**Rough:** the threshold is read from {b['healthy_runs']} healthy runs; a {b['level']:.0%} quantile "
                 f"needs at least {onset_bound.enough_healthy_runs(b['level'])} (--runs).", ""]
                if b["healthy_runs"] < onset_bound.enough_healthy_runs(b["level"]) else []),
-             "| fault | size | ours: isolated within 1 s | bound: detectable | bound: isolable | median evidence [nats] |",
-             "|---|---|---|---|---|---|"]
+             "| fault | size | ours: isolated within 1 s | bound: detectable | bound: isolable | "
+             f"bound: isolable, {rates.LEVEL * 100:g} % interval | median evidence [nats] |",
+             "|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['fault']} | {_row_size(r)} | {_f2(r['isolated_within_1s'])} | {_f2(r['bound_detectable'])} | "
-                     f"{_f2(r['bound_isolable'])} | {r['bound_median_nats']:.0f} |")
+                     f"{_f2(r['bound_isolable'])} | {_interval_text(r['bound_isolable_ci'])} | "
+                     f"{r['bound_median_nats']:.0f} |")
     return lines + ["", "Smallest size in >= 95 % of runs (that size and every larger tested size; 'none': not "
                     "even the largest):", ""] + _size_table([("ours: detected and isolated within 1 s", ours),
                                                               ("bound: isolable", b["smallest_isolable_95pct"])])
 
 
-def _smallest(rows: list, rate) -> float | None:
-    """The smallest |size| of ``rows`` from which on EVERY larger tested size also has
-    ``rate(row)`` >= 95 % (None: not even the largest). A size that passes below one that fails
-    is a lucky draw, not a size the tool can be trusted at."""
+def _smallest(rows: list, passes) -> float | None:
+    """The smallest |size| of ``rows`` from which on EVERY larger tested size also ``passes(row)``
+    (None: not even the largest). A size that passes below one that fails is a lucky draw, not a
+    size the tool can be trusted at. A NaN rate (a load third with no runs of that size) fails."""
     met = None
     for r in sorted(rows, key=lambda r: -abs(r["size"])):
-        if not rate(r) >= 0.95:  # NaN (a load third with no runs of that size) is not a pass
+        if not passes(r):
             break
         met = abs(r["size"])
     return met

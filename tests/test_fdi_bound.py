@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fdi import bound, tune
+from fdi import bound, rates, tune
 from fdi.detect import Thresholds
 from fdi.montecarlo import make_batch
 from fdi.ukf import preset, run_filter
@@ -75,4 +75,5 @@ def test_tune_reports_the_bound_next_to_our_detector(tmp_path):
     assert "**Rough:**" in (tmp_path / "metrics.md").read_text()
     row = next(r for r in m["rows"] if r["fault"] == "K_int" and r["size"] == 0.25)
     assert (row["bound_detectable"], row["bound_isolable"]) == (0.75, 0.5)
+    assert row["bound_isolable_ci"] == pytest.approx(list(rates.interval(2, 4)))  # 2 of 4: 0.07-0.93
     assert "What the data carry" in (tmp_path / "metrics.md").read_text()

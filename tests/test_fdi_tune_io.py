@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fdi import tune
+from fdi import rates, tune
 from fdi.detect import Thresholds
 from sam import UserError, load_plant
 from samfdi.cli import build_parser, main
@@ -251,6 +251,15 @@ def test_withdrawn_alarms_are_not_false_alarms(tmp_path):
     long_line = next(line for line in md.splitlines() if line.startswith("Held-out healthy runs of the issue's 20-60 s"))
     assert f"{n_long} x 20 s" in long_line and f"per run): {2 / n_long:.3f}" in long_line
     assert "(the h were set for 0.1 of the nuisance study's healthy runs)" in md  # the shipped trigger level
+    # counted and judged on their exact intervals (fdi.rates): 3 of 15 runs is shown above 1 %
+    assert (m["false_alarms"], m["long_cycles"]["false_alarms"], m["all_healthy"]["false_alarms"]) == (1, 2, 3)
+    assert m["all_healthy"]["runs"] == n + n_long and m["all_healthy"]["false_alarm_verdict"] == "not met"
+    lo, hi = rates.interval(3, n + n_long)
+    assert f"All {n + n_long} healthy runs: false-alarm rate {3 / (n + n_long):.3f} (3 of {n + n_long}; 95 % interval " \
+           f"{lo:.4f}-{hi:.4f}; <= 0.01: not met)" in md
+    k = row["isolated_runs"]
+    assert k == round(row["isolated_within_1s"] * row["runs"]) and row["isolated_ci"] == list(rates.interval(k, row["runs"]))
+    assert row["isolated_verdict"] == rates.verdict(k, row["runs"], tune.TARGET_RATE)
 
 
 def test_metrics_md_tables_with_units_and_no_exclusive_column(tmp_path):
@@ -334,8 +343,9 @@ def test_smallest_size_needs_every_larger_size_and_runs():
     runs of a size (rate NaN) is not a pass."""
     from fdi.tune import _smallest
     rows = [{"size": s, "r": r} for s, r in ((0.1, 1.0), (0.25, 0.96), (0.5, 0.97), (1.0, 0.99))]
-    assert _smallest(rows, lambda r: r["r"]) == 0.1
+    passes = lambda r: r["r"] >= 0.95  # noqa: E731  as the tune's rule for the point rate
+    assert _smallest(rows, passes) == 0.1
     rows[2]["r"] = 0.9  # 0.5 fails: 0.1 and 0.25 passing below it are lucky draws
-    assert _smallest(rows, lambda r: r["r"]) == 1.0
+    assert _smallest(rows, passes) == 1.0
     rows[3]["r"] = float("nan")  # no 1 L/min runs in this third
-    assert _smallest(rows, lambda r: r["r"]) is None
+    assert _smallest(rows, passes) is None
