@@ -9,6 +9,8 @@ import numba
 import numpy as np
 
 from sam import P, Plant, profiles
+from sam.constants import LPM
+from sam.hydraulics import fault_leakages_batch
 
 from .synth import POSITION_SENSORS, lpm, profile, random_input, simulate_runs
 
@@ -30,6 +32,26 @@ LONG_CYCLES = {"period_s": (20.0, 60.0), "amplitude_V": (1.0, 4.0), "dwell_fract
                "x0_m": (0.02, 0.40)}
 #: the input families of make_batch: the studies' mix, and the long cycles
 INPUT_FAMILIES = ("standard", "long_cycles")
+
+
+#: the leak faults, in the order of fault_leakages' flows
+LEAKS = ("K_int", "K_extA", "K_extB")
+
+
+def leak_flow_lpm(runs, fault: str, k_from: np.ndarray, window_s: float) -> np.ndarray:
+    """(B,) mean flow [L/min] through the leak ``fault`` (a LEAKS name) of each run of
+    :func:`make_batch`'s ``runs`` over its samples [k_from[b], k_from[b] + window_s): Eqs.
+    (41)-(43) at the run's true pressures, tank pressure and leak coefficient. A leak is rated
+    by its flow at 10 MPa, but passes K sqrt(dp) at the machine's own pressure difference: a
+    "0.25 L/min" K_int passes less where p_A and p_B balance (light loads), K_extB less where p_B
+    is low (heavy loads). The magnitude: an internal leak may flow either way."""
+    tr = runs.truth
+    zero = np.zeros_like(tr["p_A"])
+    K = [np.broadcast_to(tr.get(f, zero), zero.shape).astype(float) for f in LEAKS]
+    Q = fault_leakages_batch(tr["p_A"], tr["p_B"], np.ascontiguousarray(tr["params"][:, P.p_T]), *K)
+    Q = np.abs(Q[LEAKS.index(fault)])
+    w = max(1, int(round(window_s / runs.inp.dt)))
+    return np.array([Q[b, k:k + w].mean() for b, k in enumerate(np.asarray(k_from))]) / LPM
 
 
 def pool_context():

@@ -129,6 +129,7 @@ def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict 
     x = res["x"]
     truth["v"] = res["v"]
     truth["x"] = x
+    truth["p_A"], truth["p_B"] = res["p_A"], res["p_B"]  # before the sensor noise
     if position == "theta":
         th = joint_angle(x, params[:, [P.L_1]], params[:, [P.L_2]], params[:, [P.L_3]])
         if quantise:

@@ -157,6 +157,20 @@ def fault_leakages(p_A, p_B, p_T, K_int, K_extA, K_extB):
 
 
 @jit
+def fault_leakages_batch(p_A, p_B, p_T, K_int, K_extA, K_extB):
+    """Eqs. (41)-(43) of :func:`fault_leakages` over recordings: pressures p_A, p_B (B, T) [Pa],
+    tank pressure p_T (B,) [Pa] and leak coefficients K_* (B, T) [m^3/(s Pa^0.5)] (a fault that
+    changes in time); returns (3, B, T) [m^3/s]: Q_int from A to B, Q_extA, Q_extB."""
+    B, T = p_A.shape
+    out = np.empty((3, B, T))
+    for b in range(B):
+        for k in range(T):
+            out[0, b, k], out[1, b, k], out[2, b, k] = fault_leakages(
+                p_A[b, k], p_B[b, k], p_T[b], K_int[b, k], K_extA[b, k], K_extB[b, k])
+    return out
+
+
+@jit
 def effective_bulk_modulus(p, B_eff, air_fraction):
     """Bulk modulus [Pa] of oil with entrained free air, at gauge pressure p [Pa].
 

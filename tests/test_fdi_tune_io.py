@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from fdi import rates, tune
+from fdi.montecarlo import LEAKS, leak_flow_lpm, make_batch
 from fdi.detect import Thresholds
 from sam import UserError, load_plant
 from samfdi.cli import build_parser, main
@@ -40,6 +41,8 @@ def _fake_chunk(plant, th, fault, size, n, seed, inputs="standard", reference=Fa
            "conf_k": np.where(iso_h >= 0, k0 + 100, -1), "n_withdrawn": np.zeros(n, dtype=np.int64)}
     if bound:
         res["evidence"] = rng.uniform(0, 10, (n, 5))
+    if fault in LEAKS:  # every run's leak passes 0.6 of its rated flow
+        res["leak_flow_lpm"] = np.full(n, 0.6 * size)
     return res
 
 
@@ -260,6 +263,38 @@ def test_withdrawn_alarms_are_not_false_alarms(tmp_path):
     k = row["isolated_runs"]
     assert k == round(row["isolated_within_1s"] * row["runs"]) and row["isolated_ci"] == list(rates.interval(k, row["runs"]))
     assert row["isolated_verdict"] == rates.verdict(k, row["runs"], tune.TARGET_RATE)
+
+
+def test_isolation_by_the_flow_the_leak_passed(tmp_path):
+    """Each leak run passes 0.6 of its rated flow (hand-made chunks): K_int 0.1 / 0.25 / 0.5 / 1
+    L/min fall in the 0.05-0.1, 0.15-0.25, 0.25-0.5 and 0.5-1 L/min bins, 5 runs each, and the
+    one wrong isolation (K_int 0.5 L/min) is missing from its bin; offsets have no flow."""
+    jobs, tag = _hand_made_folder(tmp_path, False)
+    m = tune.analyse(tmp_path, jobs, Thresholds.shipped(), tag)
+    assert m["flow_bins_lpm"] == tune.FLOW_BINS_LPM and set(m["isolated_by_flow"]) == set(LEAKS)
+    assert m["isolated_by_flow"]["K_int"] == [[0, 0], [5, 5], [0, 0], [5, 5], [4, 5], [5, 5], [0, 0]]
+    row = next(r for r in m["rows"] if (r["fault"], r["size"]) == ("K_extB", 0.25))
+    assert row["leak_flow_median_lpm"] == pytest.approx(0.15)
+    assert all("isolated_by_flow" not in r for r in m["rows"] if r["fault"] == "offset")
+    md = (tmp_path / "metrics.md").read_text()
+    assert "| leak | < 0.05 L/min | 0.05-0.1 L/min | 0.1-0.15 L/min |" in md
+    assert "| K_int | - | 5/5 | - | 5/5 | 4/5 | 5/5 | - |" in md
+
+
+@pytest.mark.parametrize("fault", LEAKS)
+def test_leak_flow_is_the_leak_law_at_the_runs_own_pressures(fault):
+    """leak_flow_lpm of simulated runs (0.25 L/min at 10 MPa, stepping in at each run's onset): the
+    rated flow times the mean sqrt(|dp| / 10 MPa) over the second after the onset, dp the true
+    pressure difference the leak sees (tank at 0 Pa gauge), written out here; in the second
+    before the onset the leak passes nothing."""
+    n = 4
+    runs = make_batch(load_plant(), n, 7, fault=fault, size=0.25, duration=4.0, onset=tune.draw_onsets(n, 7))
+    k0 = runs.truth["k_onset"]
+    p_A, p_B = runs.truth["p_A"], runs.truth["p_B"]
+    dp = {"K_int": p_A - p_B, "K_extA": p_A, "K_extB": p_B}[fault]
+    expect = [0.25 * np.mean(np.sqrt(np.abs(dp[b, k:k + 1000]) / 10e6)) for b, k in enumerate(k0)]
+    np.testing.assert_allclose(leak_flow_lpm(runs, fault, k0, 1.0), expect, rtol=1e-12)
+    assert (leak_flow_lpm(runs, fault, k0 - 1000, 1.0) == 0.0).all()
 
 
 def test_metrics_md_tables_with_units_and_no_exclusive_column(tmp_path):

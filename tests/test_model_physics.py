@@ -87,6 +87,25 @@ def test_leak_of_table5_upper_bound_is_one_litre_per_minute():
     assert Q_extA / LPM == pytest.approx(1.00, abs=0.005)
 
 
+def test_leak_flows_over_recordings_are_eqs_41_43_at_every_sample():
+    """fault_leakages_batch (B, T) is the scalar fault_leakages at every sample, and that is the
+    closed form K sgn(dp) sqrt(|dp|) of Eqs. (41)-(43): the internal leak reverses where p_B > p_A,
+    an external one where a chamber drops below tank pressure, and a zero K passes nothing."""
+    from sam.hydraulics import fault_leakages_batch
+
+    rng = np.random.default_rng(41)
+    B, T = 3, 50
+    p_A, p_B = rng.uniform(-0.5e6, 21e6, (2, B, T))
+    p_T = rng.uniform(0.0, 0.3e6, B)
+    K = rng.uniform(0.0, 5.27e-9, (3, B, T))
+    K[1, 0] = 0.0  # run 0 has no K_extA
+    Q = fault_leakages_batch(p_A, p_B, p_T, K[0], K[1], K[2])
+    ssqrt = lambda dp: np.sign(dp) * np.sqrt(np.abs(dp))  # noqa: E731
+    expect = np.stack([K[0] * ssqrt(p_A - p_B), K[1] * ssqrt(p_A - p_T[:, None]), K[2] * ssqrt(p_B - p_T[:, None])])
+    np.testing.assert_allclose(Q, expect, rtol=1e-13, atol=0.0)
+    assert (Q[1, 0] == 0.0).all() and (Q[0][p_B > p_A] < 0).all()
+
+
 def test_steady_state_matches_closed_form_eqs_39_40():
     """Eqs. (39)-(40), friction folded into F_ext, within 1 %.
 
