@@ -35,9 +35,9 @@ def verdict(k: int, n: int, target: float, at_least: bool = True, level: float =
     """Whether k of n runs show a true rate >= ``target`` (``at_least``; a detection rate) or
     <= ``target`` (a false-alarm rate): 'met' when the whole :func:`interval` is on the target's
     side, 'not met' when it is wholly on the other side, 'undecided' otherwise (and for n = 0)."""
-    low, high = interval(k, n, level)
     if n == 0:
         return "undecided"
+    low, high = interval(k, n, level)
     good, bad = (low >= target, high < target) if at_least else (high <= target, low > target)
     return "met" if good else "not met" if bad else "undecided"
 
