@@ -15,9 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from chunkstore import StoreWarning
 from gsa import GSAError, Study, analyze, run, saltelli_design
 from gsa import testfunctions as tf
-from gsa.runner import chunk_name
+from gsa.runner import chunk_key
 
 REPO = Path(__file__).resolve().parents[1]
 N = 2**9  # 2560 runs for Ishigami
@@ -87,21 +88,21 @@ def test_chunked_inline_equals_reference(study, design, reference, tmp_path):
     result = run(study, design, tmp_path, chunk_size=300, progress=False)
     np.testing.assert_array_equal(result.Y, reference.Y)
     assert_same_indices(indices(result), indices(reference))
-    files = sorted(p.name for p in (tmp_path / "chunks").iterdir())
-    assert files == [chunk_name(i) for i in range(9)]  # ceil(2560 / 300)
+    files = sorted(p.name for p in (tmp_path / "chunks").glob("*.npz"))
+    assert files == [chunk_key(i) + ".npz" for i in range(9)]  # ceil(2560 / 300)
     manifest = json.loads((tmp_path / "manifest.json").read_text())
     fp = manifest["fingerprint"]
     assert (fp["study"], fp["N"], fp["seed"], fp["chunk_size"]) == ("ishigami-pair", N, 42, 300)
     assert manifest["layout"]["run_order"] == ["A", "B", "AB_1", "AB_2", "AB_3"]
-    assert np.load(tmp_path / "chunks" / chunk_name(8)).shape == (2560 - 8 * 300, 2)
+    assert np.load(tmp_path / "chunks" / f"{chunk_key(8)}.npz")["Y"].shape == (2560 - 8 * 300, 2)
 
 
 def test_crash_then_resume_equals_uninterrupted(study, design, reference, tmp_path):
     crashing = Study(study.name, study.problem, FailAfter(4), study.output_names)
     with pytest.raises(RuntimeError, match="simulated crash") as err:
         run(crashing, design, tmp_path, chunk_size=256, progress=False)
-    assert any("resume=True" in note for note in err.value.__notes__)
-    assert len(list((tmp_path / "chunks").glob("chunk_*.npy"))) == 4
+    assert any("resume" in note for note in err.value.__notes__)
+    assert len(list((tmp_path / "chunks").glob("chunk_*.npz"))) == 4
 
     counting = Counting()
     resumed = run(
@@ -126,9 +127,9 @@ def test_two_process_workers_equal_reference(study, design, reference, tmp_path)
     assert_same_indices(indices(result), indices(reference))
 
 
-def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
-    """A run killed with SIGKILL mid-way leaves only complete chunks; resume finishes it."""
-    script = tmp_path / "slow_study.py"
+def _slow_study_script(folder: Path) -> Path:
+    """A script running a slow 20-chunk study into the folder given as its argument."""
+    script = folder / "slow_study.py"
     script.write_text(
         textwrap.dedent(
             """
@@ -147,12 +148,18 @@ def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
             """
         )
     )
+    return script
+
+
+def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
+    """A run killed with SIGKILL mid-way leaves only complete chunks; resume finishes it."""
+    script = _slow_study_script(tmp_path)
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen([sys.executable, str(script), str(out)], env=env)
     try:
         deadline = time.monotonic() + 60
-        while len(list((out / "chunks").glob("chunk_*.npy"))) < 3:
+        while len(list((out / "chunks").glob("chunk_*.npz"))) < 3:
             assert proc.poll() is None, "the study finished or died before it could be killed"
             assert time.monotonic() < deadline
             time.sleep(0.02)
@@ -160,7 +167,7 @@ def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
     finally:
         proc.wait()
     assert proc.returncode == -signal.SIGKILL
-    finished = len(list((out / "chunks").glob("chunk_*.npy")))
+    finished = len(list((out / "chunks").glob("chunk_*.npz")))
     assert 3 <= finished < 20
 
     problem = tf.ishigami_problem()
@@ -170,6 +177,42 @@ def test_sigkill_then_resume_equals_uninterrupted(tmp_path):
     assert result.chunks_reused == finished and result.chunks_computed == 20 - finished
     np.testing.assert_array_equal(result.Y, tf.ishigami(design.X))
     assert not list((out / "chunks").glob(".chunk_*"))  # no half-written leftovers
+    assert subprocess.run(["sha256sum", "--check", "--quiet", "SHA256SUMS"], cwd=out / "chunks").returncode == 0
+
+
+def test_damaged_or_empty_chunks_are_named_and_computed_again(study, design, reference, tmp_path):
+    """A zero-length chunk used to raise EOFError; random bytes were blamed on the model (NaN/inf)."""
+    run(study, design, tmp_path, chunk_size=512, progress=False)
+    (tmp_path / "chunks" / f"{chunk_key(1)}.npz").write_bytes(b"")
+    damaged = tmp_path / "chunks" / f"{chunk_key(3)}.npz"
+    damaged.write_bytes(np.random.default_rng(0).bytes(damaged.stat().st_size))
+    with pytest.warns(StoreWarning) as caught:
+        result = run(study, design, tmp_path, chunk_size=512, resume=True, progress=False)
+    messages = sorted(str(w.message) for w in caught)
+    assert len(messages) == 2
+    assert "chunk_00001.npz: damaged: its 0 bytes do not hash" in messages[0]
+    assert "chunk_00003.npz: damaged:" in messages[1] and "computing it again" in messages[1]
+    assert (result.chunks_reused, result.chunks_computed) == (3, 2)
+    np.testing.assert_array_equal(result.Y, reference.Y)
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused(tmp_path):
+    """Two concurrent runs into one folder sometimes both ran."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, str(_slow_study_script(tmp_path)), str(out)],
+                            env={**os.environ, "PYTHONPATH": str(REPO)})
+    try:
+        deadline = time.monotonic() + 60
+        while not list((out / "chunks").glob("chunk_*.npz")):
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.02)
+        problem = tf.ishigami_problem()
+        with pytest.raises(GSAError, match=rf"another run is writing into this folder \(pid {proc.pid} "):
+            run(Study("slow", problem, tf.ishigami, ("y",)), saltelli_design(problem, 256, seed=7), out,
+                chunk_size=64, resume=True, progress=False)
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 @pytest.mark.slow
