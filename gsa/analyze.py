@@ -32,6 +32,7 @@ from gsa.estimators import (
     interaction,
     ranking,
     second_order_matrix,
+    separated_groups,
 )
 from gsa.nonfinite import NonFiniteReport
 from gsa.problem import Problem
@@ -85,6 +86,14 @@ class SobolResult:
         """Factor names of one output (index or name), most influential first."""
         j = self._output_index(output)
         return [self.factor_names[i] for i in self.ranking(by)[:, j]]
+
+    def ranked_groups(self, output: int | str, by: str = "ST") -> list[list[int]]:
+        """Factor indices of one output, most influential first, grouped where the confidence
+        intervals do not separate them (:func:`gsa.estimators.separated_groups`)."""
+        if by not in ("S1", "ST"):
+            raise GSAError(f"ranking is by 'S1' or 'ST', got {by!r}")
+        j = self._output_index(output)
+        return separated_groups(*(getattr(self, by + part)[:, j] for part in ("", "_lo", "_hi")))
 
     def to_rows(self) -> list[dict]:
         """One dict per (output, factor), keys :data:`CSV_COLUMNS`; time_s None if unknown or NaN."""

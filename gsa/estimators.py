@@ -411,6 +411,29 @@ def ranking(S: np.ndarray) -> np.ndarray:
     return np.argsort(-S, axis=0, kind="stable")
 
 
+def separated_groups(S: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[list[int]]:
+    """One output's factors, most influential first, in groups that the intervals separate.
+
+    ``S``, ``lo``, ``hi`` (G,): the estimates and their interval bounds. Factors are
+    sorted by S; the order is cut between two positions only where every factor above
+    has its lower bound above the upper bound of every factor below, so each ">" a
+    reader sees is backed by disjoint intervals and "tied" means "not separated at
+    this confidence". Without intervals (NaN bounds) nothing is separated: one group.
+    """
+    order = [int(i) for i in np.argsort(-S, kind="stable")]
+    low = np.where(np.isfinite(lo), lo, -np.inf)[order]
+    high = np.where(np.isfinite(hi), hi, np.inf)[order]
+    floor_above = np.minimum.accumulate(low)
+    ceil_below = np.maximum.accumulate(high[::-1])[::-1]
+    groups, start = [], 0
+    for p in range(len(order) - 1):
+        if floor_above[p] > ceil_below[p + 1]:
+            groups.append(order[start : p + 1])
+            start = p + 1
+    groups.append(order[start:])
+    return groups
+
+
 def second_order_matrix(S2: np.ndarray, G: int) -> np.ndarray:
     """Expand pairs (P, ...) to a (G, G, ...) matrix with NaN off the upper triangle (as SALib)."""
     out = np.full((G, G) + S2.shape[1:], np.nan)

@@ -1,10 +1,15 @@
-"""Tables and figures of a finished study, in the form of the paper's.
+"""Tables, words and figures of a finished study, in the form of the paper's.
 
-* ``ranking.csv``: factors ranked per output, by S1 (Tables 2) and by ST (Table 6);
+* ``ranking.csv``: factors ranked per output, by S1 (Table 2) and by ST (Table 6),
+  with the group of factors their 95 % intervals do not separate;
 * ``interactions.csv``: 1 - sum S1 per output (Table 3);
-* ``summary.md``: the paper's Tables 2, 3, 4, 6, 7 and 8 for our run;
-* figures: steady-state bars of S1 and ST with CI whiskers (Figs. 5 and 7) and
-  area plots of the indices over time (Figs. 6 and 8).
+* ``summary.md``: what the study shows in plain words, then the paper's Tables 2,
+  3, 4, 6, 7 and 8 for our run, every index with its interval;
+* figures: steady-state bars of S1 and ST with their intervals (Figs. 5 and 7) and
+  the indices over time with their intervals, one line per factor (Figs. 6 and 8).
+
+A ranking is only stated as far as the intervals separate it
+(:meth:`gsa.analyze.SobolResult.ranked_groups`): "dp_N_PA ≈ dp_N_BT > Q_N_PA".
 """
 
 from __future__ import annotations
@@ -20,6 +25,20 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from gsa.analyze import SobolResult  # noqa: E402
+
+#: a factor whose total index stays below this even at its interval's upper end is
+#: "negligible": it can stay at its nominal value for this output (factor fixing)
+NEGLIGIBLE_ST = 0.05
+#: 1 - sum S1 above this: interactions carry a share of the variance worth acting on
+MARKED_INTERACTION = 0.1
+STEADY = "_steady"
+
+
+def report_files(result_outputs: tuple[str, ...], output_times) -> tuple[str, ...]:
+    """Names of the files :func:`write_report` writes for a study with these outputs."""
+    series = sorted({n for n, t in zip(result_outputs, output_times or ()) if math.isfinite(t)})
+    return ("indices.csv", "ranking.csv", "interactions.csv", "summary.md", "steady_state_indices.png",
+            *(f"indices_over_time_{name}.png" for name in series))
 
 
 def _series(result: SobolResult) -> dict[str, np.ndarray]:
@@ -39,16 +58,134 @@ def _scalars(result: SobolResult) -> dict[str, int]:
             if times is None or not math.isfinite(times[j])}
 
 
+# -- words ------------------------------------------------------------------------------
+
+
+def ranking_words(result: SobolResult, j: int, by: str = "ST", negligible: bool = True) -> str:
+    """One output's ranking as far as the intervals separate it: "a ≈ b (tied within the 95 %
+    intervals) > c". ``negligible``: name the factors below :data:`NEGLIGIBLE_ST` apart."""
+    if result.constant[j]:
+        return "none (the output did not vary, its indices are undefined)"
+    hi = getattr(result, by + "_hi")[:, j]
+    small = {i for i in range(len(result.factor_names)) if negligible and hi[i] < NEGLIGIBLE_ST}
+    groups = [[result.factor_names[i] for i in group if i not in small] for group in result.ranked_groups(j, by)]
+    text = tied_ranking(groups, result.confidence)
+    if small:
+        text += (f"; negligible ({by} < {NEGLIGIBLE_ST:g} at the interval's upper end): "
+                 + ", ".join(result.factor_names[i] for i in sorted(small)))
+    return text
+
+
+def tied_ranking(groups: list[list[str]], confidence: float = 0.95) -> str:
+    """Groups of names, most influential first, as "a ≈ b (tied within the 95 % intervals) > c"."""
+    parts = [" ≈ ".join(g) + (f" (tied within the {_pct(confidence)} intervals)" if len(g) > 1 else "")
+             for g in groups if g]
+    return " > ".join(parts) or "no factor matters"
+
+
+def _pct(fraction: float) -> str:
+    return f"{100 * fraction:.0f} %"
+
+
+def _capital(text: str) -> str:
+    return text[:1].upper() + text[1:]
+
+
+def _join(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+
+
+def _named(result: SobolResult, spec, i: int) -> str:
+    words = spec.factor_words.get(result.factor_names[i])
+    return f"{result.factor_names[i]} ({words})" if words else result.factor_names[i]
+
+
+def _output_words(spec, name: str) -> str:
+    base = name[: -len(STEADY)] if name.endswith(STEADY) else name
+    words = spec.output_words.get(base, base)
+    return f"the steady {words}" if name.endswith(STEADY) else words
+
+
+def conclusion(result: SobolResult, spec) -> list[str]:
+    """The section a hydraulics engineer reads first: for each steady output what matters,
+    as far as the intervals tell, and what to do about it."""
+    scalars = {n: j for n, j in _scalars(result).items() if not result.constant[j]}
+    if not scalars:
+        return []
+    lines = ["## What the study shows", ""]
+    key: set[int] = set()
+    negligible = set(range(len(result.factor_names)))
+    for name, j in scalars.items():
+        groups = result.ranked_groups(j, "ST")
+        top = groups[0]
+        key.update(top)
+        negligible &= {i for i in range(len(result.factor_names)) if result.ST_hi[i, j] < NEGLIGIBLE_ST}
+        values = ", ".join(f"{result.ST[i, j]:.2f} [{result.ST_lo[i, j]:.2f}, {result.ST_hi[i, j]:.2f}]"
+                           for i in top)
+        tied = (f", tied within the {_pct(result.confidence)} intervals: the data cannot say which "
+                f"matters more" if len(top) > 1 else "")
+        lines.append(f"- **{_capital(_output_words(spec, name))}** depends most on "
+                     f"{_join([_named(result, spec, i) for i in top])} (total index {values}{tied}). "
+                     f"Full ranking: {ranking_words(result, j)}.")
+    lines.append("")
+    key_names = [result.factor_names[i] for i in sorted(key)]
+    fixed = [result.factor_names[i] for i in sorted(negligible - key)]
+    inter = [float(result.interactions[j]) for j in scalars.values()]
+    advice = (f"**What to do with it.** To make the model match these outputs of a machine, know "
+              f"{_join(key_names)} best: measure them or calibrate them first, since an error in them "
+              f"moves the outputs most.")
+    if fixed:
+        advice += (f" {_join(fixed)} can stay at {'its' if len(fixed) == 1 else 'their'} nominal "
+                   f"value{'s' * (len(fixed) > 1)} for these outputs: over the studied ranges "
+                   f"{'it moves' if len(fixed) == 1 else 'they move'} none of them measurably.")
+    advice += " " + _transient_note(result, spec, negligible - key)
+    if max(inter) > MARKED_INTERACTION:
+        advice += (f" Interactions carry up to {_pct(max(inter))} of the variance (1 − Σ S1): change "
+                   f"parameters together when calibrating, not one at a time.")
+    else:
+        advice += (f" Interactions are small (1 − Σ S1 at most {max(inter):.2f}): each parameter acts "
+                   f"mostly on its own, so they can be calibrated one by one.")
+    if result.N < 4096:
+        advice += (f" With N = {result.N} the intervals are wide; a larger --n separates more of "
+                   f"the ranking (their width shrinks as 1/√N).")
+    return lines + [advice.replace("  ", " ").strip(), ""]
+
+
+def _transient_note(result: SobolResult, spec, steady_negligible: set[int]) -> str:
+    """Factors negligible at steady state that clearly matter at some instant of the transient."""
+    notes = []
+    for i in sorted(steady_negligible):
+        peak = None
+        for name, cols in _series(result).items():
+            lo = result.ST_lo[i, cols]
+            if np.any(np.isfinite(lo)) and np.nanmax(lo) >= NEGLIGIBLE_ST:
+                k = int(np.nanargmax(lo))
+                if peak is None or result.ST[i, cols[k]] > peak[0]:
+                    peak = (float(result.ST[i, cols[k]]), name, float(result.output_times[cols[k]]))
+        if peak:
+            notes.append(f"{result.factor_names[i]} matters only during the transient (total index "
+                         f"{peak[0]:.2f} in {spec.output_words.get(peak[1], peak[1])} at {peak[2]:g} s): "
+                         f"it needs to be right for the start of a motion, not for steady operation.")
+    return " ".join(notes)
+
+
+# -- tables -----------------------------------------------------------------------------
+
+
 def write_ranking(result: SobolResult, path: Path) -> Path:
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["output", "time_s", "by", "rank", "parameter", "value"])
+        w.writerow(["output", "time_s", "by", "rank", "group", "parameter", "value", "lo", "hi"])
         for by in ("S1", "ST"):
-            values, order = getattr(result, by), result.ranking(by)
+            values, lo, hi = (getattr(result, by + part) for part in ("", "_lo", "_hi"))
             for j, name in enumerate(result.output_names):
                 t = _time_text(result, j)
-                for rank, i in enumerate(order[:, j], start=1):
-                    w.writerow([name, t, by, rank, result.factor_names[i], repr(float(values[i, j]))])
+                rank = 0
+                for g, group in enumerate(result.ranked_groups(j, by), start=1):
+                    for i in group:
+                        rank += 1
+                        w.writerow([name, t, by, rank, g, result.factor_names[i],
+                                    *(repr(float(v[i, j])) for v in (values, lo, hi))])
     return path
 
 
@@ -77,52 +214,63 @@ def _fmt(v: float, digits: int = 3) -> str:
     return "nan" if not math.isfinite(v) else f"{v:.{digits}f}"
 
 
+def _with_interval(result: SobolResult, by: str, i: int, j: int, digits: int = 3) -> str:
+    lo, hi = getattr(result, by + "_lo")[i, j], getattr(result, by + "_hi")[i, j]
+    return f"{_fmt(getattr(result, by)[i, j], digits)} [{_fmt(lo, digits)}, {_fmt(hi, digits)}]"
+
+
 def summary_markdown(result: SobolResult, spec, runtime_s: float | None = None) -> str:
-    """The paper's tables for this run (steady state, interactions, indices over time)."""
+    """What the study shows in words, then the paper's tables for this run."""
     lines = [f"# Sobol' sensitivity study `{spec.study.name}`", ""]
     if spec.description:
         lines += [spec.description, ""]
     lines += [f"N = {result.N} (runs N(k+2) = {result.N * (len(result.factor_names) + 2)}), "
               f"estimator `{result.estimator}`, {result.n_boot} bootstrap resamples "
-              f"({result.ci}, {result.confidence:.0%} intervals), seed {spec.seed}."]
+              f"({result.ci}, {_pct(result.confidence)} intervals), seed {spec.seed}."]
     if runtime_s is not None:
         lines[-1] += f" Wall time {runtime_s:.1f} s."
     if spec.steady_definition:
         lines += ["", f"Steady state: {spec.steady_definition}."]
-    lines += [""]
+    lines += ["", f"Every index is given with its {_pct(result.confidence)} bootstrap interval. A ranking "
+              f"is stated only as far as the intervals separate it: \"a ≈ b\" means the intervals of a "
+              f"and b overlap, so the data do not tell which matters more; \"a > b\" means they are "
+              f"disjoint.", ""]
     scalars = _scalars(result)
     if spec.analytic is not None:
         lines += _analytic_table(result, spec, scalars)
         return "\n".join(lines) + "\n"
-    lines += _ranking_table(result, scalars, "S1", "Ranking by first-order index at steady state (paper's Table 2)")
-    lines += _ranking_table(result, scalars, "ST", "Ranking by total index at steady state (the form of the paper's Table 6)")
+    lines += conclusion(result, spec)
+    lines += _ranking_tables(result, spec, scalars)
     lines += ["## Interactions at steady state (paper's Table 3)", "",
               "| output | 1 − Σ S1 | Σ ST |", "|---|---|---|"]
     inter = result.interactions
     for name, j in scalars.items():
         lines.append(f"| {name} | {_fmt(inter[j], 4)} | {_fmt(np.sum(result.ST[:, j]), 4)} |")
     lines.append("")
-    series = _series(result)
-    for name, cols in series.items():
+    for name, cols in _series(result).items():
         for by, paper in (("ST", "Tables 4 and 8"), ("S1", "Table 7")):
             lines += _over_time_table(result, spec, name, cols, by, paper)
     return "\n".join(lines) + "\n"
 
 
-def _ranking_table(result, scalars, by, title) -> list[str]:
-    names = list(scalars)
-    lines = [f"## {title}", "", "| rank | " + " | ".join(names) + " |",
-             "|---" * (len(names) + 1) + "|"]
-    order = result.ranking(by)
-    values = getattr(result, by)
-    for rank in range(len(result.factor_names)):
-        cells = []
-        for name in names:
-            j = scalars[name]
-            i = order[rank, j]
-            cells.append(f"{result.factor_names[i]} ({_fmt(values[i, j])})")
-        lines.append(f"| {rank + 1} | " + " | ".join(cells) + " |")
-    return lines + [""]
+def _ranking_tables(result, spec, scalars) -> list[str]:
+    """Per steady output: the ranking in words, then every factor's S1 and ST with intervals
+    (the paper's Tables 2 and 6), tied factors sharing a rank range."""
+    lines = ["## Ranking at steady state (paper's Tables 2 and 6)", ""]
+    for name, j in scalars.items():
+        lines += [f"### {name}: {_output_words(spec, name)}", "",
+                  f"By total index ST: {ranking_words(result, j, 'ST')}.  ",
+                  f"By first-order index S1: {ranking_words(result, j, 'S1')}.", "",
+                  "| rank (ST) | parameter | S1 [95 % interval] | ST [95 % interval] |", "|---|---|---|---|"]
+        rank = 1
+        for group in result.ranked_groups(j, "ST"):
+            label = str(rank) if len(group) == 1 else f"{rank}–{rank + len(group) - 1} (tied)"
+            for i in group:
+                lines.append(f"| {label} | {_named(result, spec, i)} | {_with_interval(result, 'S1', i, j)} "
+                             f"| {_with_interval(result, 'ST', i, j)} |")
+            rank += len(group)
+        lines.append("")
+    return lines
 
 
 def _over_time_table(result, spec, name, cols, by, paper) -> list[str]:
@@ -140,7 +288,8 @@ def _over_time_table(result, spec, name, cols, by, paper) -> list[str]:
 def _analytic_table(result, spec, scalars) -> list[str]:
     S1_exact, ST_exact = spec.analytic
     j = next(iter(scalars.values()))
-    lines = ["## Estimates against the analytic indices", "",
+    lines = [f"Ranking by total index: {ranking_words(result, j, 'ST', negligible=False)}.", "",
+             "## Estimates against the analytic indices", "",
              "| parameter | S1 | 95 % CI | exact S1 | ST | 95 % CI | exact ST |",
              "|---|---|---|---|---|---|---|"]
     for i, name in enumerate(result.factor_names):
@@ -152,47 +301,75 @@ def _analytic_table(result, spec, scalars) -> list[str]:
     return lines + ["", f"Largest absolute error: {err:.4f}.", ""]
 
 
-def plot_steady_bars(result: SobolResult, path: Path) -> Path | None:
-    """Figs. 5 and 7: S1 and ST with CI whiskers per scalar output."""
+# -- figures ----------------------------------------------------------------------------
+
+
+def _colour(i: int):
+    """One colour per factor, the same in every figure of a study."""
+    return plt.get_cmap("tab10")(i % 10)
+
+
+def plot_steady_bars(result: SobolResult, spec, path: Path) -> Path | None:
+    """Figs. 5 and 7: S1 and ST with their intervals per steady output."""
     scalars = _scalars(result)
     if not scalars:
         return None
     k = len(result.factor_names)
-    fig, axes = plt.subplots(1, len(scalars), figsize=(4.2 * len(scalars), 3.6), squeeze=False)
+    fig, axes = plt.subplots(1, len(scalars), figsize=(3.6 * len(scalars) + 1.0, 4.2), squeeze=False,
+                             sharey=True)
     x = np.arange(k)
     for ax, (name, j) in zip(axes[0], scalars.items()):
         for off, by, color in ((-0.2, "S1", "tab:blue"), (0.2, "ST", "tab:orange")):
             v = getattr(result, by)[:, j]
             lo, hi = getattr(result, by + "_lo")[:, j], getattr(result, by + "_hi")[:, j]
             yerr = np.vstack([np.clip(v - lo, 0, None), np.clip(hi - v, 0, None)])
-            ax.bar(x + off, v, 0.4, yerr=np.nan_to_num(yerr), capsize=2, color=color, label=by)
-        ax.set_xticks(x, result.factor_names, rotation=45, ha="right", fontsize="small")
-        ax.set_title(name)
-        ax.set_ylim(0, 1.05)
+            ax.bar(x + off, v, 0.4, yerr=yerr, capsize=2, color=color,
+                   label=f"{by} ({'first-order' if by == 'S1' else 'total'})")
+        ax.set_xticks(x, result.factor_names, rotation=45, ha="right")
+        ax.set_title(_capital(_output_words(spec, name)), fontsize="medium")
+        ax.set_ylim(-0.05, 1.05)
         ax.grid(axis="y", alpha=0.3)
     axes[0][0].set_ylabel("Sobol' index")
-    axes[0][0].legend()
+    axes[0][0].legend(fontsize="small")
+    fig.suptitle(f"Steady-state indices of {spec.study.name}, N = {result.N}, "
+                 f"{_pct(result.confidence)} intervals as whiskers", fontsize="medium")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
 
 
-def plot_area_over_time(result: SobolResult, name: str, cols: np.ndarray, path: Path) -> Path:
-    """Figs. 6 and 8: stacked areas of S1 and ST of each factor over time for one output."""
+def plot_indices_over_time(result: SobolResult, spec, name: str, cols: np.ndarray, path: Path) -> Path:
+    """Figs. 6 and 8 as lines: S1 (top) and ST (bottom) of each factor over time for one output,
+    each with its interval shaded. Instants where the output did not vary are gaps, not 0;
+    factors negligible throughout are listed under the plot instead of drawn."""
     t = result.output_times[cols]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharey=True)
+    G = len(result.factor_names)
+    shown = [i for i in range(G) if np.nanmax(result.ST_hi[i, cols], initial=-np.inf) >= NEGLIGIBLE_ST]
+    hidden = [result.factor_names[i] for i in range(G) if i not in shown]
+    fig, axes = plt.subplots(2, 1, figsize=(9.0, 7.5), sharex=True, layout="constrained")
     for ax, by in zip(axes, ("S1", "ST")):
-        values = np.clip(np.nan_to_num(getattr(result, by)[:, cols]), 0, None)
-        ax.stackplot(t, values, labels=result.factor_names, alpha=0.85)
-        ax.set_title(f"{name}: {'first-order' if by == 'S1' else 'total'} indices")
-        ax.set_xlabel("t [s]")
+        v, lo, hi = (getattr(result, by + part)[:, cols] for part in ("", "_lo", "_hi"))
+        for i in shown:  # NaN stays NaN: matplotlib leaves a gap
+            ax.plot(t, v[i], color=_colour(i), lw=1.6, label=_named(result, spec, i))
+            ax.fill_between(t, lo[i], hi[i], where=np.isfinite(lo[i]) & np.isfinite(hi[i]),
+                            color=_colour(i), alpha=0.2, lw=0)
+        ax.set_ylabel(f"{by}, {'first-order' if by == 'S1' else 'total'} index")
         ax.set_xscale("log")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("stacked index")
-    axes[1].legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+        ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.3, which="both")
+    axes[-1].set_xlabel("time after the start of the run t [s] (log scale)")
+    title = (f"{_capital(spec.output_words.get(name, name))}: Sobol' indices over time\n"
+             f"N = {result.N}; shaded: {_pct(result.confidence)} bootstrap intervals")
+    if result.constant[cols].any():
+        title += "; gaps: the output did not vary there"
+    fig.suptitle(title, fontsize="medium")
+    handles, labels = axes[0].get_legend_handles_labels()
+    if hidden:
+        handles.append(plt.Line2D([], [], color="none"))
+        labels.append(f"not drawn (total index below {NEGLIGIBLE_ST:g} throughout): {', '.join(hidden)}")
+    fig.legend(handles, labels, loc="outside lower center", ncol=2, fontsize="small", frameon=False)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
 
@@ -204,9 +381,9 @@ def write_report(result: SobolResult, spec, out: Path, runtime_s: float | None =
     summary = out / "summary.md"
     summary.write_text(summary_markdown(result, spec, runtime_s))
     paths.append(summary)
-    bars = plot_steady_bars(result, out / "steady_state_indices.png")
+    bars = plot_steady_bars(result, spec, out / "steady_state_indices.png")
     if bars:
         paths.append(bars)
     for name, cols in _series(result).items():
-        paths.append(plot_area_over_time(result, name, cols, out / f"indices_over_time_{name}.png"))
+        paths.append(plot_indices_over_time(result, spec, name, cols, out / f"indices_over_time_{name}.png"))
     return paths

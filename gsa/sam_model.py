@@ -16,6 +16,18 @@ import numpy as np
 import sam
 
 
+#: the model's states as a hydraulics engineer names them (tables, legends, conclusions)
+OUTPUT_WORDS = {
+    "p_A": "piston-side chamber pressure p_A",
+    "p_B": "rod-side chamber pressure p_B",
+    "x_s": "spool position x_s",
+    "dx_s": "spool velocity",
+    "x": "piston position x",
+    "v": "piston velocity v",
+    "z": "friction bristle deflection z",
+}
+
+
 @dataclass(frozen=True, eq=False)
 class SamModel:
     """Evaluate the SAM model for rows of sampled parameters.

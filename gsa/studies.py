@@ -21,11 +21,16 @@ from gsa.runner import Study
 from gsa.testfunctions import ishigami, ishigami_indices, sobol_g, sobol_g_indices
 from sam.constants import LPM
 from sam.errors import UserError, did_you_mean, where
+from sam.plant import read_toml, refuse_other_kind
 
 #: Units a study may give bounds in, and their factor to SI.
 UNITS = {"1": 1.0, "SI": 1.0, "%": 0.01, "L/min": LPM, "bar": 1e5, "MPa": 1e6, "Pa": 1.0,
          "m^3/s": 1.0, "m^3/(s Pa^0.5)": 1.0, "N s/m": 1.0, "N": 1.0, "kg": 1.0, "m": 1.0}
 MODELS = ("sam", "ishigami", "sobol_g")
+#: fewest bootstrap resamples: the report states each index with its 95 % interval and ranks
+#: only as far as the intervals separate, and a percentile interval needs at least one
+#: replicate beyond each of its 2.5 % points: 2 / (1 - 0.95) = 40
+MIN_BOOTSTRAP = 40
 _TOP = {"name", "description", "model", "N", "seed", "estimator", "n_bootstrap", "ci",
         "parameters", "simulation", "model_options", "steady_state"}
 _PARAM_KEYS = {"bounds", "distribution", "unit", "description", "group"}
@@ -50,16 +55,20 @@ class StudySpec:
     source: Path | None = None
     analytic: tuple[np.ndarray, np.ndarray] | None = None  #: exact (S1, ST) of test functions
     extra: dict[str, Any] = field(default_factory=dict)
+    #: factor -> what it is in words (the parameter's ``description``), for tables and legends
+    factor_words: dict[str, str] = field(default_factory=dict)
+    #: output base name -> what it is in words ("piston-side chamber pressure p_A")
+    output_words: dict[str, str] = field(default_factory=dict)
 
 
 def load_study(path: str | Path) -> StudySpec:
-    from sam.plant import read_toml
-
     path = Path(path)
     return study_from_table(read_toml(path), path)
 
 
 def study_from_table(table: dict[str, Any], source: Path) -> StudySpec:
+    refuse_other_kind(table, source, "a GSA study file", "`samfdi gsa run` takes a study such as "
+                      "scenarios/gsa/paper_parameters.toml (a scenario runs with `samfdi simulate`)")
     _no_unknown(table, _TOP, source, "")
     model = table.get("model")
     if model not in MODELS:
@@ -71,13 +80,15 @@ def study_from_table(table: dict[str, Any], source: Path) -> StudySpec:
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise UserError(f"{where(source, 'seed')}: expected a non-negative integer, got {seed!r}")
     n_boot = table.get("n_bootstrap", 1000)
-    if isinstance(n_boot, bool) or not isinstance(n_boot, int) or n_boot < 0:
-        raise UserError(f"{where(source, 'n_bootstrap')}: expected an integer >= 0, got {n_boot!r}")
+    if isinstance(n_boot, bool) or not isinstance(n_boot, int) or n_boot < MIN_BOOTSTRAP:
+        raise UserError(f"{where(source, 'n_bootstrap')}: expected an integer >= {MIN_BOOTSTRAP} (resamples "
+                        f"for the 95 % intervals), got {n_boot!r}")
     problem, units = _problem(table, source)
     name = str(table.get("name", source.stem))
     common = dict(N=N, seed=seed, estimator=table.get("estimator"), n_bootstrap=n_boot,
                   ci=str(table.get("ci", "percentile")), units=units,
-                  description=str(table.get("description", "")), source=source)
+                  description=str(table.get("description", "")), source=source,
+                  factor_words=_factor_words(table["parameters"], problem))
     if model == "sam":
         return _sam_study(table, source, name, problem, units, common)
     return _analytic_study(table, source, name, model, problem, common)
@@ -128,6 +139,16 @@ def _problem(table, source) -> tuple[Problem, tuple[str, ...]]:
     return problem, tuple(units)
 
 
+def _factor_words(params: dict, problem: Problem) -> dict[str, str]:
+    """Factor -> its description (a group: the descriptions of its parameters, joined)."""
+    words: dict[str, list[str]] = {}
+    for name, group in zip(problem.names, problem.groups or problem.names):
+        text = str(params[name].get("description", "")).strip()
+        if text:
+            words.setdefault(group, []).append(text)
+    return {factor: "; ".join(texts) for factor, texts in words.items()}
+
+
 def _analytic_study(table, source, name, model, problem, common) -> StudySpec:
     options = table.get("model_options", {})
     k = len(problem.names)
@@ -153,7 +174,7 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
     from sam.profiles import INPUT_KINDS, evaluate
     from sam.scenario import load_mass_profile
 
-    from gsa.sam_model import SamModel
+    from gsa.sam_model import OUTPUT_WORDS, SamModel
 
     sim = table.get("simulation")
     if not isinstance(sim, dict):
@@ -200,4 +221,5 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
     instants = tuple(float(v) for v in sim.get("instants_s", []))
     steady = (f"mean of the outputs recorded every {every * 1e3:g} ms from {steady_from:g} s "
               f"to {duration:g} s")
-    return StudySpec(study=study, instants_s=instants, steady_definition=steady, **common)
+    return StudySpec(study=study, instants_s=instants, steady_definition=steady,
+                     output_words={o: OUTPUT_WORDS.get(o, o) for o in outputs}, **common)

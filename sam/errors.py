@@ -8,6 +8,8 @@ stderr and a non-zero exit code; it never shows a traceback for these.
 from __future__ import annotations
 
 import difflib
+import os
+import tempfile
 from pathlib import Path
 
 
@@ -34,24 +36,57 @@ def did_you_mean(key: str, known) -> str:
     return f" (did you mean '{match[0]}'?)" if match else ""
 
 
-def output_folder(path: str | Path, files: tuple[str, ...] = (), force: bool = False, create: bool = True) -> Path:
+def output_folder(path: str | Path, files: tuple[str, ...] = (), force: bool = False, create: bool = True,
+                  option: str = "--out") -> Path:
     """The folder ``path``, checked before any work is done: a UserError if it is a file, lies
-    under a file, cannot be created, or already holds one of ``files`` (unless ``force``: the
-    user's files are never replaced without being asked). ``create``: also create it now (else
-    call again with ``create=True`` once there is something to write, so that a refused run
-    leaves no empty folder behind)."""
+    under a file, cannot be created or written, or already holds one of ``files`` (unless
+    ``force``: the user's files are never replaced without being asked). ``create``: also create
+    it now (else call again with ``create=True`` once there is something to write, so that a
+    refused run leaves no empty folder behind)."""
     out = Path(path)
-    existing_parent = out
-    while not existing_parent.exists() and existing_parent != existing_parent.parent:
-        existing_parent = existing_parent.parent
-    if not existing_parent.is_dir():
-        raise UserError(f"{out}: --out: {existing_parent} is a file, not a folder")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: {option}: is a file, not a folder")
+    _check_writable(out, option)
     existing = [f for f in files if (out / f).exists()]
     if existing and not force:
-        raise UserError(f"{out}: already holds {', '.join(existing)}; use --force to overwrite")
+        raise UserError(f"{out}: already holds {', '.join(existing)}; use --force to overwrite, or choose "
+                        f"another {option}")
     if create:
         try:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as e:
-            raise UserError(f"{out}: --out: cannot create the folder ({e.strerror or e})") from None
+            raise UserError(f"{out}: {option}: cannot create the folder ({e.strerror or e})") from None
     return out
+
+
+def output_file(path: str | Path, force: bool = False, suffixes: tuple[str, ...] = (),
+                option: str = "--out") -> Path:
+    """The file ``path`` a command will write, checked before any work: its suffix is one of
+    ``suffixes`` (if given), it is not a folder, it does not exist (unless ``force``), and its
+    folder can be created and written."""
+    out = Path(path)
+    if suffixes and out.suffix.lower() not in suffixes:
+        raise UserError(f"{out}: {option}: the file name must end in {' or '.join(suffixes)}")
+    if out.is_dir():
+        raise UserError(f"{out}: {option}: is a folder; give a file name")
+    if out.exists() and not force:
+        raise UserError(f"{out}: exists; choose another path or pass --force to overwrite it")
+    _check_writable(out.parent, option)
+    return out
+
+
+def _check_writable(folder: Path, option: str) -> None:
+    """UserError unless ``folder`` exists and can be written, or can be created where it is missing.
+    Tried for real (a probe file), not with os.access: that says yes to root on a read-only mount."""
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise UserError(f"{folder}: {option}: {existing} is a file, not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(dir=existing, prefix=".samfdi-write-test-")
+    except OSError as e:
+        what = "the folder is not writable" if existing == folder else f"cannot create it in {existing}"
+        raise UserError(f"{folder}: {option}: {what} ({e.strerror or e})") from None
+    os.close(fd)
+    os.unlink(probe)

@@ -58,6 +58,26 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise UserError(f"{path}: cannot read TOML: {exc}") from None
 
 
+#: keys that only one kind of project file has: how a file given to the wrong command is recognised
+FILE_KINDS = {
+    "a plant file": frozenset(_GROUPS) - {"effects"},
+    "a scenario file": frozenset({"duration_s", "dt_s", "output_dt_s", "input", "load", "faults", "sensors",
+                                  "initial", "plant_overrides"}),
+    "a GSA study file": frozenset({"parameters", "model", "N", "simulation", "n_bootstrap"}),
+}
+
+
+def refuse_other_kind(table: dict[str, Any], source: str | Path, expected: str, hint: str) -> None:
+    """A UserError when ``table`` is plainly another kind of project file than ``expected`` (one of
+    :data:`FILE_KINDS`): it has keys of that kind and none of the expected kind's."""
+    if FILE_KINDS[expected] & set(table):
+        return
+    for kind, keys in FILE_KINDS.items():
+        found = sorted(keys & set(table))
+        if kind != expected and found:
+            raise UserError(f"{source}: this is {kind} (it has {', '.join(found)}), not {expected}; {hint}")
+
+
 def load_plant(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Plant:
     """Load a plant file over the shipped defaults, then validate it.
 
@@ -70,7 +90,9 @@ def load_plant(path: str | Path | None = None, overrides: dict[str, Any] | None 
     source = default_plant_path()
     if path is not None:
         source = Path(path)
-        _merge(table, read_toml(source), source)
+        user = read_toml(source)
+        refuse_other_kind(user, source, "a plant file", "give a plant file such as scenarios/plants/sam.toml")
+        _merge(table, user, source)
     if overrides:
         _merge(table, overrides, source)
     return plant_from_table(table, source)

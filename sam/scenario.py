@@ -41,7 +41,7 @@ from .constants import DT_DEFAULT
 from .errors import UserError, did_you_mean, where
 from .measurement import Sensors, measure
 from .params import P, Plant
-from .plant import load_plant, read_toml
+from .plant import load_plant, read_toml, refuse_other_kind
 from .profiles import INPUT_KINDS, PROFILE_KINDS, U_LIMIT_V, evaluate
 from .recording import Recording
 from .simulate import initial_state, simulate_batch
@@ -82,6 +82,8 @@ def load_scenario(path: str | Path) -> Scenario:
 
 
 def scenario_from_table(table: dict[str, Any], source: Path) -> Scenario:
+    refuse_other_kind(table, source, "a scenario file", "`samfdi simulate` takes a scenario such as "
+                      "scenarios/paper_step.toml (a study runs with `samfdi gsa run`)")
     for key in table:
         if key not in _TOP_KEYS:
             raise UserError(f"{where(source, key)}: unknown key{did_you_mean(key, _TOP_KEYS)}; "

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
 import sys
 import warnings
 
@@ -20,11 +21,26 @@ COMMAND_MODULES = ("sam.cli", "gsa.cli", "fdi.cli", "discrepancy.cli", "samfdi.d
 EXIT_USER_ERROR = 2
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse with its errors as one line (a :class:`UserError`), not usage text and SystemExit."""
+
+    def error(self, message: str):
+        raise UserError(f"{self.prog}: {message} (see {self.prog} --help)")
+
+
+def version() -> str:
+    try:
+        return importlib.metadata.version("sam-fdi")
+    except importlib.metadata.PackageNotFoundError:  # run from a source tree without installing
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="samfdi",
         description="Leak and valve fault detection for a servo-valve-controlled hydraulic cylinder.",
     )
+    parser.add_argument("--version", action="version", version=f"samfdi {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
         try:
@@ -43,9 +59,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
     warnings.showwarning = _show_warning
     try:
+        args = parser.parse_args(argv)
         return int(args.func(args) or 0)
     except UserError as exc:
         print(f"samfdi: error: {exc}", file=sys.stderr)

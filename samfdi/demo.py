@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from sam.hydraulics import leak_coefficient
-from sam.errors import UserError
+from sam.errors import UserError, output_folder
 from sam.plant import default_plant_path
 from sam.plotting import plot_recordings
 from sam.recording import write_recording
@@ -53,17 +53,20 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def new_folder(requested: Path | None) -> Path:
-    """The output folder: the requested one if new or empty, else a fresh samfdi-demo-N."""
+    """The output folder: the requested one if new or empty, else a fresh samfdi-demo[-N] here;
+    checked (and created) before any work."""
     if requested is not None:
-        if requested.exists() and any(requested.iterdir()):
+        if requested.is_dir() and any(requested.iterdir()):
             raise UserError(f"{requested}: folder exists and is not empty; choose another --out")
-        requested.mkdir(parents=True, exist_ok=True)
-        return requested
+        return output_folder(requested)
     for n in range(1, 1000):
         folder = Path("samfdi-demo" if n == 1 else f"samfdi-demo-{n}")
         if not folder.exists():
-            folder.mkdir()
-            return folder
+            try:
+                return output_folder(folder)
+            except UserError:
+                raise UserError(f"{Path.cwd()}: the current folder is not writable, so the demo cannot make "
+                                f"its folder here; pass --out DIR with a folder you can write") from None
     raise UserError("too many samfdi-demo folders here; pass --out")
 
 
@@ -93,6 +96,7 @@ def demo_command(args: argparse.Namespace) -> int:
 def _demo_gsa(out: Path) -> None:
     """Stage 2: both paper studies at reduced N, through the same command a user runs."""
     from gsa.cli import run_command
+    from gsa.report import NEGLIGIBLE_ST, tied_ranking
 
     studies = default_plant_path().parents[1] / "gsa"
     for name in ("paper_parameters", "paper_leakage"):
@@ -100,12 +104,12 @@ def _demo_gsa(out: Path) -> None:
         args = argparse.Namespace(
             study=studies / f"{name}.toml", out=out / f"gsa_{name}", n=DEMO_GSA_N, estimator=None,
             bootstrap=DEMO_GSA_BOOTSTRAP, workers=None, executor="auto", scheduler=None,
-            chunk_size=None, precision="float32", resume=False, no_progress=True)
+            chunk_size=None, precision="float32", resume=False, force=False, no_progress=True)
         with contextlib.redirect_stdout(io.StringIO()):
             run_command(args)
         ranking = _steady_ranking(out / f"gsa_{name}" / "ranking.csv")
         print(f"  2. sensitivity ({name}, N = {DEMO_GSA_N}, {time.perf_counter() - t0:.1f} s): "
-              + "; ".join(f"{o}: {' > '.join(r[:3])}" for o, r in ranking.items())
+              + "; ".join(f"{o}: {r}" for o, r in ranking.items())
               + f" -> gsa_{name}/summary.md")
 
 
@@ -153,11 +157,13 @@ def _describe(diagnosis) -> str:
     return ", ".join(parts)
 
 
-def _steady_ranking(path: Path) -> dict[str, list[str]]:
-    """Steady-state ranking by total index, per output, from a ranking.csv."""
-    ranking: dict[str, list[str]] = {}
+def _steady_ranking(path: Path) -> dict[str, str]:
+    """Steady-state ranking by total index per output, from a ranking.csv, stated only as far as
+    the 95 % intervals separate it; factors negligible even at their upper bound are left out."""
+    groups: dict[str, dict[int, list[str]]] = {}
     with open(path) as f:
         for row in csv.DictReader(f):
-            if row["by"] == "ST" and row["output"].endswith("_steady"):
-                ranking.setdefault(row["output"][: -len("_steady")], []).append(row["parameter"])
-    return ranking
+            if row["by"] == "ST" and row["output"].endswith("_steady") and float(row["hi"]) >= NEGLIGIBLE_ST:
+                output = row["output"][: -len("_steady")]
+                groups.setdefault(output, {}).setdefault(int(row["group"]), []).append(row["parameter"])
+    return {output: tied_ranking([g[k] for k in sorted(g)]) for output, g in groups.items()}
