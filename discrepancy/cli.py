@@ -1,9 +1,14 @@
-"""``samfdi mismatch RECORDING [--plant plant.toml] [--validate OTHER] --out DIR``."""
+"""``samfdi mismatch RECORDING [--plant plant.toml] [--validate OTHER] --out DIR [--force]``."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
+from sam.errors import output_folder
+from sam.options import real
+
+from .report import OUTPUT_FILES
 
 
 def add_commands(subparsers) -> None:
@@ -15,13 +20,15 @@ def add_commands(subparsers) -> None:
                     "supply droop, bypass leakage, hose compliance, sensor lag/delay, load mass) and write "
                     "DIR/report.md, DIR/report.json and figures.",
     )
-    p.add_argument("recording", type=Path, help="recording (.csv or .mat, see recording-format.md)")
+    p.add_argument("recording", type=Path, help="recording (.csv or .mat, see docs/recordings.md)")
     p.add_argument("--plant", type=Path, default=None, help="plant TOML (default: the shipped SAM)")
     p.add_argument("--validate", type=Path, default=None,
-                   help="second recording of the same plant for held-out validation (default: every third 1 s segment)")
+                   help="second recording of the same plant for held-out validation (default: every third segment)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
-    p.add_argument("--segment", type=float, default=1.0, help="simulation segment length [s] (default 1)")
+    p.add_argument("--segment", type=real(above=0.0), default=1.0,
+                   help="simulation segment length [s] (default 1; at least 0.3, at most a third of the recording)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p.add_argument("--force", action="store_true", help="overwrite report.md, report.json and figures in --out")
     p.set_defaults(func=handler)
 
 
@@ -30,12 +37,13 @@ def handler(args: argparse.Namespace) -> int:
 
     from .diagnose import diagnose
 
+    out = output_folder(args.out, OUTPUT_FILES, args.force, create=False)  # before the work, not after it
     plant = sam.load_plant(args.plant)
     rec = sam.read_recording(args.recording).measured()
     val = sam.read_recording(args.validate).measured() if args.validate else None
-    report = diagnose(rec, plant, args.out, validate=val, seg_s=args.segment, figures=not args.no_figures)
+    report = diagnose(rec, plant, out, validate=val, seg_s=args.segment, figures=not args.no_figures)
     print(report.headline)
     for w in report.warnings:
         print(f"warning: {w}")
-    print(f"report: {args.out / 'report.md'}  ({report.timings['total_s']:.1f} s)")
+    print(f"report: {out / 'report.md'}  ({report.timings['total_s']:.1f} s)")
     return 0

@@ -26,6 +26,9 @@ MIN_DURATION_S = 3.0
 MIN_INPUT_RANGE_V = 0.05
 #: Fastest simulation step [s]; slower recordings are simulated with sub-steps.
 MAX_SIM_DT = 1e-3
+#: Shortest simulation segment [s]: each segment starts with a 30 ms start-up transient that is not
+#: scored (SegmentSimulator's skip_s), and a segment ten times as long is mostly scored dynamics.
+MIN_SEGMENT_S = 0.3
 
 
 @dataclass
@@ -154,6 +157,32 @@ def spool_trajectory(plant: Plant, u: np.ndarray, dt_sim: float, n_sub: int) -> 
     return res["x_s"][0], res["dx_s"][0]
 
 
+def check_segment(seg_s: float, data: Prepared, validation: Prepared | None = None) -> None:
+    """Refuse a segment length the diagnosis cannot use, instead of silently using another one:
+    it must be at least MIN_SEGMENT_S, and the recording must hold three segments (two to fit,
+    one to hold out) or, with a validation recording, the validation recording one."""
+    if not (math.isfinite(seg_s) and seg_s >= MIN_SEGMENT_S):
+        raise UserError(f"--segment {seg_s:g} s: a segment must be at least {MIN_SEGMENT_S:g} s (each starts "
+                        f"with a 30 ms transient that is not scored)")
+    longest = data.duration / 3 if validation is None else min(data.duration, validation.duration)
+    if seg_s > longest:
+        raise UserError(f"--segment {seg_s:g} s: {data.name} ({data.duration:.1f} s) must hold three segments "
+                        f"(two to fit, one held out); use --segment {math.floor(100 * longest) / 100:g} or less"
+                        if validation is None else
+                        f"--segment {seg_s:g} s: longer than a recording ({data.duration:.1f} s and "
+                        f"{validation.duration:.1f} s); use --segment {math.floor(100 * longest) / 100:g} or less")
+
+
+def sampling_note(data: Prepared, validation: Prepared) -> str | None:
+    """A warning when the validation recording is sampled at another rate than the recording."""
+    if abs(validation.dt - data.dt) <= 0.01 * data.dt:
+        return None
+    return (f"the validation recording {validation.name} is sampled every {1e3 * validation.dt:g} ms, the "
+            f"recording every {1e3 * data.dt:g} ms: the model is simulated on each file's own sample grid, so "
+            f"the held-out fit is measured at another rate than the fit (resample one of them to compare like "
+            f"with like)")
+
+
 def check_same_plant(main: Prepared, other: Prepared, plant: Plant, other_label: str) -> None:
     """Refuse a validation recording that comes from a different plant."""
     a, b = main.metadata.get("plant"), other.metadata.get("plant")
@@ -171,4 +200,5 @@ def check_same_plant(main: Prepared, other: Prepared, plant: Plant, other_label:
         )
 
 
-__all__ = ["Prepared", "prepare", "check_same_plant", "spool_trajectory", "MIN_DURATION_S", "P", "S"]
+__all__ = ["Prepared", "prepare", "check_same_plant", "check_segment", "sampling_note", "spool_trajectory",
+           "MIN_DURATION_S", "MIN_SEGMENT_S", "P", "S"]

@@ -17,7 +17,7 @@ from sam import Plant
 from sam.recording import Recording
 
 from . import locate as loc
-from .data import check_same_plant, prepare
+from .data import check_same_plant, check_segment, prepare, sampling_note
 from .fitting import FitResult, Model, Split, correlation_time, evaluate, fit, segment_delta_bic, segment_rss, segment_scales
 from .library import Free, Hypothesis, calibration_params, format_value, library
 from .simulation import MEAS_PARAMS, SIGNALS, SegmentSimulator, fits
@@ -85,6 +85,7 @@ class Report:
     timings: dict
     figures: list[str] = field(default_factory=list)
     n_eff: float = 0.0
+    segment_s: float = 1.0  # length of the simulation segments [s]
     traces: dict = field(default_factory=dict)  # for figures
 
     @property
@@ -117,8 +118,12 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     if validate is not None:
         vdata = prepare(validate, plant, role="validation recording", min_duration=1.0)
         check_same_plant(data, vdata, plant, str(validate.source or "validation recording"))
+        check_segment(seg_s, data, vdata)
+        if note := sampling_note(data, vdata):
+            warnings.append(note)
         split = Split(SegmentSimulator(data, seg_s, held_out_every=10**9), SegmentSimulator(vdata, seg_s, all_held_out=True))
     else:
+        check_segment(seg_s, data)
         split = Split(SegmentSimulator(data, seg_s))
     fsim = split.fit_sim
 
@@ -252,6 +257,7 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
         source=str(rec.source or "recording"), validate_source=str(validate.source) if validate is not None else None,
         verdict=verdict, headline=headline, fit_table=fit_table, calibration=calibration, located=located,
         ranked=cands, chosen=chosen, generic=gen, warnings=warnings, timings=timings, n_eff=n_eff,
+        segment_s=fsim.seg.length * data.dt,
     )
     report.traces = {"split": split, "nominal": base, "calibrated": cal, "final": final, "residual": res,
                      "masks": masks, "energy": energy}

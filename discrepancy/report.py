@@ -10,6 +10,10 @@ import numpy as np
 
 from .simulation import SIGNALS
 
+#: every file a diagnosis writes into its folder (refused there without --force)
+OUTPUT_FILES = ("report.md", "report.json", "overlay.png", "overlay_validation.png", "residual.png")
+_MODEL_COLOURS = {"nominal": "tab:blue", "calibrated": "tab:orange", "augmented": "tab:green",
+                  "generic term": "tab:purple"}
 _SIG_UNIT = {"pA": ("p_A [MPa]", 1e-6), "pB": ("p_B [MPa]", 1e-6), "x": ("x [mm]", 1e3)}
 
 
@@ -76,7 +80,8 @@ def to_markdown(report) -> str:
     if report.warnings:
         L += ["## Warnings", ""] + [f"- {w}" for w in report.warnings] + [""]
     L += ["## Fit % (NRMSE, 100 = perfect)", "",
-          "Each 1 s segment is simulated from the measured state at its start; every third segment is held out"
+          f"Each {report.segment_s:g} s segment is simulated from the measured state at its start; every third "
+          f"segment is held out"
           if report.validate_source is None else f"Held out: the whole of {report.validate_source}.", ""]
     L += _fit_rows(report.fit_table) + [""]
     L += ["## Calibration of the nominal parameters (GSA-ranked)", ""]
@@ -102,7 +107,8 @@ def to_markdown(report) -> str:
           f"BIC change (effective samples {report.n_eff:.0f}; below -10 is strong), error reduction on the "
           "fitting part and held out. Accepted = strong BIC, at least 5 % less error on both parts and "
           "+0.5 points of held-out fit. A second effect is accepted on top of the first by strong BIC on "
-          "the fitting part and on the held-out part, each 1 s segment with its own residual variance.", "",
+          f"the fitting part and on the held-out part, each {report.segment_s:g} s segment with its own residual "
+          f"variance.", "",
           "| rank | effect | accepted | signature | dBIC | error -% fit | error -% held out | fitted |",
           "|---|---|---|---|---|---|---|---|"]
     for i, c in enumerate(report.ranked[:3]):
@@ -135,6 +141,10 @@ def to_markdown(report) -> str:
     return "\n".join(L) + "\n"
 
 
+def _and(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+
+
 def figures(report, out: Path) -> list[str]:
     import matplotlib
 
@@ -161,24 +171,33 @@ def figures(report, out: Path) -> list[str]:
             pr, meas = model.build(th[None, :])
             traces["generic term"] = sim.simulate(pr, meas if np.any(meas) else None, full=True,
                                                   time_varying=model.tv(th[None, :], sim))
-        fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
-        for ax, k in zip(axes, SIGNALS):
+        fig, axes = plt.subplots(2 * len(SIGNALS), 1, figsize=(11, 11), sharex=True, layout="constrained",
+                                 gridspec_kw={"height_ratios": [3, 1.3] * len(SIGNALS)})
+        t_seg = np.concatenate([d.t[s:s + sim.seg.length] for s in sim.seg.starts])
+        idx_seg = np.concatenate([np.arange(s, min(s + sim.seg.length, d.n)) for s in sim.seg.starts])
+        cut = np.r_[np.diff(t_seg) > 1.5 * d.dt, False]  # no line across a segment boundary
+        for n, k in enumerate(SIGNALS):
+            ax, rax = axes[2 * n], axes[2 * n + 1]
             label, scale = _SIG_UNIT[k]
-            ax.plot(d.t, d.y[k] * scale, color="0.6", lw=0.8, label="recording")
+            # the recording is what the reader checks the models against: drawn boldest, models thin on top
+            ax.plot(d.t, d.y[k] * scale, color="black", lw=2.2, label="recording", zorder=2)
             for m, o in traces.items():
-                t_seg = np.concatenate([d.t[s:s + sim.seg.length] for s in sim.seg.starts])
                 y_seg = np.concatenate([o[k][0, j] for j in range(len(sim.seg.starts))])
-                y_plot = y_seg.copy()
-                y_plot[np.r_[np.diff(t_seg) > 1.5 * d.dt, False]] = np.nan
-                ax.plot(t_seg, y_plot * scale, lw=0.9, label=m)
+                y_seg[cut] = np.nan
+                ax.plot(t_seg, y_seg * scale, lw=0.9, alpha=0.85, color=_MODEL_COLOURS.get(m), label=m, zorder=3)
+                rax.plot(t_seg, (d.y[k][idx_seg] - y_seg) * scale, lw=0.8, alpha=0.85, color=_MODEL_COLOURS.get(m))
+            rax.axhline(0.0, color="black", lw=0.8)
             for j, s in enumerate(sim.seg.starts):
                 if sim.seg.held_out[j] and sim is split.fit_sim:
-                    ax.axvspan(d.t[s], d.t[min(s + sim.seg.length, d.n - 1)], color="0.9", zorder=0)
+                    for a_ in (ax, rax):
+                        a_.axvspan(d.t[s], d.t[min(s + sim.seg.length, d.n - 1)], color="0.92", zorder=0)
             ax.set_ylabel(label)
-        axes[0].legend(loc="upper right", fontsize=8, ncol=5)
-        axes[-1].set_xlabel("t [s] (grey bands: held-out segments)")
-        axes[0].set_title("recording vs nominal, calibrated and augmented simulation")
-        fig.tight_layout()
+            rax.set_ylabel(f"recording − model\n{label.split()[-1]}", fontsize=9)
+        axes[0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), fontsize=9, ncol=5, frameon=False)
+        axes[-1].set_xlabel("t [s]" + ("  (grey bands: held-out segments)" if sim is split.fit_sim else ""))
+        fig.suptitle(("Held-out recording" if part == "held" else "Recording")
+                     + f": measured (black) against the {_and(list(traces))} model"
+                     + "s" * (len(traces) > 1) + "; residual beneath each signal", fontsize=11)
         name = "overlay.png" if part == "fit" else "overlay_validation.png"
         fig.savefig(out / name, dpi=110)
         plt.close(fig)

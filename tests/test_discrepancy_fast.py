@@ -96,11 +96,12 @@ def test_validation_from_another_plant_is_refused(plant, air_rec):
 
 
 def test_cli_end_to_end_names_entrained_air(tmp_path, air_rec):
+    """Also: --segment 1.5 is used and said (the report spoke of "each 1 s segment" whatever it was)."""
     from samfdi.cli import main
 
     path = sam.write_recording(tmp_path / "air.csv", air_rec)
     out = tmp_path / "out"
-    assert main(["mismatch", str(path), "--out", str(out)]) == 0
+    assert main(["mismatch", str(path), "--out", str(out), "--segment", "1.5"]) == 0
     rep = json.loads((out / "report.json").read_text())
     assert rep["verdict"] == "named"
     assert rep["named_effects"][0] == "entrained_air"
@@ -109,6 +110,7 @@ def test_cli_end_to_end_names_entrained_air(tmp_path, air_rec):
     f = rep["fit_percent"]
     assert f["augmented"]["held"]["mean"] > f["calibrated"]["held"]["mean"]
     assert (out / "report.md").read_text().startswith("# Mismatch diagnosis")
+    assert "Each 1.5 s segment" in (out / "report.md").read_text()
     assert (out / "overlay.png").exists() and (out / "residual.png").exists()
 
 
@@ -288,3 +290,36 @@ def test_segment_wise_bic_is_not_carried_by_one_segment():
     # residuals are laid out signal-major, (n_seg, n_eval) per signal
     r = np.concatenate([np.full((2, 4), s + 1.0).ravel() * np.repeat([1.0, 2.0], 4) for s in range(3)])
     assert np.allclose(segment_rss(r, 2), [4 * (1 + 4 + 9), 4 * 4 * (1 + 4 + 9)])
+
+
+@pytest.mark.parametrize("seg_s, words", [(0.1, "at least 0.3 s"), (1.5, "must hold three segments")])
+def test_unusable_segment_lengths_are_refused(plant, seg_s, words):
+    rec = make_recording(CASE["no_mismatch"], duration=4.0, seed=5).measured()
+    with pytest.raises(UserError, match=rf"--segment {seg_s:g} s: .*{words}"):
+        diagnose(rec, plant, seg_s=seg_s, generic=False, figures=False)
+
+
+def test_a_validation_recording_at_another_rate_is_said(plant, air_rec):
+    from discrepancy.data import sampling_note
+
+    half = sam.Recording(t=air_rec.t[::2], signals={k: v[::2] for k, v in air_rec.signals.items()},
+                         truth={}, metadata=dict(air_rec.metadata), source="half.csv")
+    note = sampling_note(prepare(air_rec, plant), prepare(half, plant, role="validation recording"))
+    assert "half.csv is sampled every 2 ms, the recording every 1 ms" in note
+    assert sampling_note(prepare(air_rec, plant), prepare(air_rec, plant)) is None
+
+
+def test_mismatch_never_overwrites_a_report_and_checks_the_folder_first(tmp_path, air_rec, capsys):
+    from cli_helpers import one_line_error, read_only_folder, samfdi
+    from samfdi.cli import main
+
+    path = sam.write_recording(tmp_path / "air.csv", air_rec)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "report.md").write_text("mine")
+    assert main(["mismatch", str(path), "--out", str(out)]) == 2
+    assert "already holds report.md; use --force" in capsys.readouterr().err
+    assert (out / "report.md").read_text() == "mine"
+    with read_only_folder() as folder:
+        line = one_line_error(samfdi("mismatch", str(path), "--out", str(folder / "m")))
+        assert f"{folder}/m: --out: cannot create it in {folder}" in line
