@@ -19,7 +19,9 @@ from gsa.errors import GSAError
 
 _F8 = 8  # bytes per float64
 #: bytes beyond the arrays counted below: the interpreter with numpy, scipy, numba and
-#: matplotlib loaded, and the figures (measured: ~0.35 GB resident for a SAM study at N = 256)
+#: matplotlib loaded, and the figures. Measured peak RSS of paper_parameters: 0.36 GB at N = 256
+#: (estimate 0.83 GB), 0.88 GB at N = 4096 (estimate 1.5 GB): cautious at small N, where nothing
+#: is refused anyway; at large N the outputs and the design dominate and are counted exactly.
 BASE_BYTES = 512 * 2**20
 #: copies of one chunk's outputs alive at once (the model's result, the copy the
 #: background writer saves, numpy's .npz buffer)
