@@ -21,6 +21,7 @@ from gsa.runner import Study
 from gsa.testfunctions import ishigami, ishigami_indices, sobol_g, sobol_g_indices
 from sam.constants import LPM
 from sam.errors import UserError, did_you_mean, where
+from sam.params import P
 from sam.plant import read_toml, refuse_other_kind
 
 #: Units a study may give bounds in, and their factor to SI.
@@ -139,6 +140,31 @@ def _problem(table, source) -> tuple[Problem, tuple[str, ...]]:
     return problem, tuple(units)
 
 
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _seconds(sim: dict, key: str, default: float, source) -> float:
+    """A time in the [simulation] table: a finite number >= 0 (> 0 for steps and durations)."""
+    value = sim.get(key, default)
+    if not _is_number(value) or value < 0 or (key != "steady_from_s" and value == 0):
+        raise UserError(f"{where(source, f'simulation.{key}')}: expected a positive number of seconds, got {value!r}")
+    return float(value)
+
+
+def _corners(base: np.ndarray, problem: Problem, units: tuple[str, ...]) -> np.ndarray:
+    """Parameter rows where a step's stability is checked: the plant's, and each sampled parameter
+    alone at its 0.1 % and 99.9 % quantile (next to its bounds, for a uniform one), in SI."""
+    q = problem.transform(np.array([[0.001] * problem.k, [0.999] * problem.k]))
+    rows = [base]
+    for i, (name, unit) in enumerate(zip(problem.names, units)):
+        for value in q[:, i]:
+            row = base.copy()
+            row[P[name]] = value * UNITS[unit]
+            rows.append(row)
+    return np.array(rows)
+
+
 def _factor_words(params: dict, problem: Problem) -> dict[str, str]:
     """Factor -> its description (a group: the descriptions of its parameters, joined)."""
     words: dict[str, list[str]] = {}
@@ -172,7 +198,7 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
     import sam
     from sam.plant import load_plant
     from sam.profiles import INPUT_KINDS, evaluate
-    from sam.scenario import load_mass_profile
+    from sam.scenario import check_step, load_mass_profile
 
     from gsa.sam_model import OUTPUT_WORDS, SamModel
 
@@ -184,9 +210,9 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
         if pname not in sam.PARAM_NAMES:
             raise UserError(f"{where(source, f'parameters.{pname}')}: not a parameter of the SAM model; "
                             f"see sam.PARAM_NAMES")
-    dt = float(sim.get("dt_s", 1e-3))
-    duration = float(sim.get("duration_s", 4.0))
-    every = float(sim.get("every_s", 0.01))
+    dt = _seconds(sim, "dt_s", 1e-3, source)
+    duration = _seconds(sim, "duration_s", 4.0, source)
+    every = _seconds(sim, "every_s", 0.01, source)
     n_steps = int(round(duration / dt))
     stride = int(round(every / dt))
     if stride < 1 or n_steps < stride:
@@ -195,7 +221,7 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
     plant = load_plant(source.parent / sim["plant"] if "plant" in sim else None)
     u = evaluate(INPUT_KINDS, sim.get("input", {"kind": "step", "amplitude_V": 2.5}), t, source,
                  "simulation.input")
-    load = load_mass_profile({"load": sim.get("load", {})}, t, source)
+    load = load_mass_profile({"load": sim.get("load", {})}, t, source, "simulation.load")
     base = plant.vector()
     time_varying = None
     if "m_L" in load:  # a constant load needs no per-step update
@@ -204,12 +230,16 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
             base[sam.P.m_L] = m[0]
         else:
             time_varying = {"m_L": m}
+    check_step(_corners(base, problem, units), time_varying or {}, u, dt, source, "simulation.dt_s")
     outputs = tuple(sim.get("outputs", ["p_A", "p_B", "v"]))
     for o in outputs:
         if o not in sam.S.__members__:
             raise UserError(f"{where(source, 'simulation.outputs')}: unknown output {o!r}; "
                             f"expected states {list(sam.S.__members__)}")
-    steady_from = float(sim.get("steady_from_s", duration - 1.0))
+    steady_from = _seconds(sim, "steady_from_s", duration - 1.0, source)
+    if not steady_from < duration:
+        raise UserError(f"{where(source, 'simulation.steady_from_s')}: must be before the end of the run "
+                        f"({duration:g} s), got {steady_from:g}")
     model = SamModel(
         base=base, columns=tuple(int(sam.P[n]) for n in problem.names),
         scales=np.array([UNITS[u_] for u_ in units]), u=u, dt=dt,
@@ -218,7 +248,11 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
     )
     names, times = model.output_names_and_times()
     study = Study(name, problem, model, output_names=names, output_times=times)
-    instants = tuple(float(v) for v in sim.get("instants_s", []))
+    instants = sim.get("instants_s", [])
+    if not isinstance(instants, list) or not all(_is_number(v) and 0 < v <= duration for v in instants):
+        raise UserError(f"{where(source, 'simulation.instants_s')}: expected a list of times in (0, {duration:g}] s, "
+                        f"got {instants!r}")
+    instants = tuple(float(v) for v in instants)
     steady = (f"mean of the outputs recorded every {every * 1e3:g} ms from {steady_from:g} s "
               f"to {duration:g} s")
     return StudySpec(study=study, instants_s=instants, steady_definition=steady,

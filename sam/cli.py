@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .errors import UserError
+from .errors import UserError, output_file
+from .plotting import figure_suffixes
 from .recording import write_recording
 from .scenario import load_scenario, run_scenario
 
@@ -18,22 +19,21 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("scenario", type=Path, help="scenario TOML file, e.g. scenarios/paper_step.toml")
     p.add_argument("--out", type=Path, required=True, help="output recording, .csv or .mat")
-    p.add_argument("--plot", type=Path, help="also save a PNG of u, x, v, p_A and p_B")
+    p.add_argument("--plot", type=Path, help="also save a figure of u, x, v, p_A and p_B (.png, .pdf, .svg, ...)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(func=simulate_command)
 
 
 def simulate_command(args: argparse.Namespace) -> int:
-    if args.out.suffix.lower() not in (".csv", ".mat"):
-        raise UserError(f"{args.out}: --out must end in .csv or .mat")
-    if args.out.resolve() == args.scenario.resolve():
-        raise UserError(f"{args.out}: --out would overwrite the scenario file")
-    if args.plot is not None:
-        _check_free(args.plot, args.force)
+    out = output_file(args.out, args.force, suffixes=(".csv", ".mat"))
+    if out.resolve() == args.scenario.resolve():
+        raise UserError(f"{out}: --out would overwrite the scenario file")
+    if args.plot is not None:  # checked before the work, not after the recording is written
+        output_file(args.plot, args.force, suffixes=figure_suffixes(), option="--plot")
     scenario = load_scenario(args.scenario)
     rec = run_scenario(scenario)
-    write_recording(args.out, rec, overwrite=args.force)
-    print(f"wrote {args.out} ({rec.n} samples, {rec.t[-1]:.3g} s)")
+    write_recording(out, rec, overwrite=args.force)
+    print(f"wrote {out} ({rec.n} samples, {rec.t[-1]:.3g} s)")
     if "warning" in rec.metadata:
         print(f"warning: {rec.metadata['warning']}")
     if args.plot is not None:
@@ -42,8 +42,3 @@ def simulate_command(args: argparse.Namespace) -> int:
         plot_recordings({scenario.name: rec}, args.plot, scenario.description)
         print(f"wrote {args.plot}")
     return 0
-
-
-def _check_free(path: Path, force: bool) -> None:
-    if path.exists() and not force:
-        raise UserError(f"{path}: exists; choose another path or pass --force")

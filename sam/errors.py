@@ -66,7 +66,7 @@ def output_file(path: str | Path, force: bool = False, suffixes: tuple[str, ...]
     folder can be created and written."""
     out = Path(path)
     if suffixes and out.suffix.lower() not in suffixes:
-        raise UserError(f"{out}: {option}: the file name must end in {' or '.join(suffixes)}")
+        raise UserError(f"{out}: {option}: the file name must end in one of {', '.join(suffixes)}")
     if out.is_dir():
         raise UserError(f"{out}: {option}: is a folder; give a file name")
     if out.exists() and not force:

@@ -9,10 +9,16 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
 
 from .recording import Recording  # noqa: E402
 
 MPA = 1e6
+
+
+def figure_suffixes() -> tuple[str, ...]:
+    """File name endings matplotlib can save a figure as (".png", ".pdf", ".svg", ...)."""
+    return tuple(sorted("." + ext for ext in FigureCanvasBase.get_supported_filetypes()))
 
 
 def velocity_of(rec: Recording) -> tuple[np.ndarray, str]:

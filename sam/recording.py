@@ -241,8 +241,19 @@ def _parse_metadata(lines: list[str]) -> dict[str, str]:
     return metadata
 
 
+#: separators a spreadsheet or logger may use instead of the format's comma, and their names
+_OTHER_SEPARATORS = {";": "semicolons", "\t": "tabs", "|": "vertical bars", " ": "spaces"}
+
+
 def _parse_header(line: str, path: Path, line_no: int) -> list[str]:
     names = [n.strip() for n in next(csv.reader([line]))]
+    if len(names) == 1:
+        for sep, word in _OTHER_SEPARATORS.items():
+            if len(line.strip().split(sep)) > 1:
+                raise RecordingError(
+                    f"{path}: header (line {line_no}) is one column, {line.strip()[:40]!r}: the file is separated "
+                    f"by {word} ({sep!r}), the format by commas with '.' as the decimal mark (docs/recordings.md); "
+                    f"save or export it as CSV with ',' as the separator")
     if all(_is_number(n) for n in names):
         raise RecordingError(f"{path}: header row missing: line {line_no} holds numbers, expected column names")
     for i, name in enumerate(names):

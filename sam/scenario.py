@@ -16,9 +16,15 @@ ground truth in ``true_*`` columns. See ``scenarios/paper_step.toml``::
     amplitude_V = 2.5
     [load]                         # m_L_kg = 494.0, or a profile of m_L [kg]
     m_L_kg = 494.0
-    [faults.K_extA]                # K_int, K_extA, K_extB [m^3/(s Pa^0.5)], offset [1]
+    [faults.K_extA]                # K_int, K_extA, K_extB: leaks; offset: the spool's
     kind = "step"
-    value = 2.6e-9
+    value = 0.5
+    unit = "L/min"                 # L/min at 10 MPa, or "m^3/(s Pa^0.5)" (the default: K of Eqs. (41)-(43))
+    t0_s = 1.0
+    [faults.offset]
+    kind = "step"
+    value = 2.0
+    unit = "%"                     # % of the spool travel, or "1" (the default: a fraction)
     t0_s = 1.0
     [sensors]                      # see sam.measurement.Sensors
     pressure_noise_Pa = 20e3
@@ -31,6 +37,7 @@ ground truth in ``true_*`` columns. See ``scenarios/paper_step.toml``::
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,20 +46,31 @@ import numpy as np
 
 from .constants import DT_DEFAULT
 from .errors import UserError, did_you_mean, where
+from .hydraulics import flow_coefficient, leak_coefficient, leak_lpm
 from .measurement import Sensors, measure
 from .params import P, Plant
 from .plant import load_plant, read_toml, refuse_other_kind
 from .profiles import INPUT_KINDS, PROFILE_KINDS, U_LIMIT_V, evaluate
 from .recording import Recording
 from .simulate import initial_state, simulate_batch
+from .stability import STABLE_GROWTH, diverged, largest_stable_step, step_growth
 
 FAULT_NAMES = ("K_int", "K_extA", "K_extB", "offset")
+#: units a fault size may be given in (key ``unit``), with their factor to the model's; the first is the default
+LEAK_UNITS = {"m^3/(s Pa^0.5)": 1.0, "L/min": leak_coefficient(1.0)}  # L/min: passed at 10 MPa
+OFFSET_UNITS = {"1": 1.0, "%": 0.01}  # of the spool's full travel
+#: a spool offset above this share of the travel is warned about: twice the paper's largest (Table 1, +-5 %)
+OFFSET_WARN = 0.10
 _TOP_KEYS = {"description", "plant", "duration_s", "dt_s", "output_dt_s", "seed", "input", "load",
              "faults", "sensors", "initial", "plant_overrides", "name"}
 #: Ground-truth columns: recording name -> model parameter or state.
 _TRUE_PARAMS = {"true_K_int": "K_int", "true_K_extA": "K_extA", "true_K_extB": "K_extB",
                 "true_offset": "offset", "true_mL": "m_L"}
 _TRUE_STATES = {"true_pA": "p_A", "true_pB": "p_B", "true_x": "x", "true_v": "v", "true_xs": "x_s"}
+
+
+class ScenarioWarning(UserWarning):
+    """A scenario that runs but probably says something else than its author meant."""
 
 
 @dataclass(frozen=True)
@@ -108,6 +126,7 @@ def scenario_from_table(table: dict[str, Any], source: Path) -> Scenario:
         raise UserError(f"{where(source, 'seed')}: expected a non-negative integer, got {seed!r}")
     u = _input(table, t, source, base, seed)
     time_varying = {**_faults(table, t, source, plant), **load_mass_profile(table, t, source)}
+    check_step(plant.vector(), time_varying, u, dt, source, "dt_s")
     return Scenario(
         name=str(table.get("name", source.stem)),
         description=str(table.get("description", "")),
@@ -151,32 +170,93 @@ def _faults(table, t, source, plant) -> dict[str, np.ndarray]:
     faults = _table(table, "faults", source)
     out = {}
     for name, spec in faults.items():
+        field_ = f"faults.{name}"
         if name not in FAULT_NAMES:
-            raise UserError(f"{where(source, f'faults.{name}')}: unknown fault; expected one of {list(FAULT_NAMES)}")
+            raise UserError(f"{where(source, field_)}: unknown fault; expected one of {list(FAULT_NAMES)}")
         if not isinstance(spec, dict):
-            raise UserError(f"{where(source, f'faults.{name}')}: expected a table with a 'kind'")
-        values = evaluate(PROFILE_KINDS, spec, t, source, f"faults.{name}")
-        if name != "offset" and np.any(values < 0):
-            raise UserError(f"{where(source, f'faults.{name}')}: a leak coefficient cannot be negative")
-        if name == "offset" and np.any(np.abs(values) >= 1):
-            raise UserError(f"{where(source, 'faults.offset')}: offset is a fraction of travel, |offset| < 1")
+            raise UserError(f"{where(source, field_)}: expected a table with a 'kind'")
+        spec = dict(spec)
+        units = OFFSET_UNITS if name == "offset" else LEAK_UNITS
+        unit = spec.pop("unit", next(iter(units)))
+        if unit not in units:
+            raise UserError(f"{where(source, field_ + '.unit')}: expected one of {list(units)}, got {unit!r}")
+        values = evaluate(PROFILE_KINDS, spec, t, source, field_) * units[unit]
+        if name == "offset":
+            _check_offset(values, unit, source)
+        else:
+            _check_leak(values, unit, plant, source, field_)
         out[name] = values
     return out
 
 
-def load_mass_profile(table, t, source) -> dict[str, np.ndarray]:
-    """The ``[load]`` table: ``m_L_kg = ...`` or a profile of m_L [kg]; {"m_L": (n_steps,)} or {}."""
+def _check_leak(K: np.ndarray, unit: str, plant: Plant, source, field_: str) -> None:
+    """Refuse a leak that is no leak: negative, or passing more than the fully open valve delivers
+    (a burst line; typically an L/min figure typed where K was expected)."""
+    if np.any(K < 0):
+        raise UserError(f"{where(source, field_)}: a leak coefficient cannot be negative")
+    v = plant.valve
+    K_valve = max(flow_coefficient(v.Q_N_PA, v.dp_N_PA), flow_coefficient(v.Q_N_PB, v.dp_N_PB))
+    worst = float(np.max(K))
+    if worst > K_valve:
+        hint = (f"; if you meant {worst:g} L/min at 10 MPa, add unit = \"L/min\"" if unit != "L/min" else "")
+        raise UserError(
+            f"{where(source, field_)}: a leak of {leak_lpm(worst):.3g} L/min at 10 MPa (K = {worst:.3g} "
+            f"m^3/(s Pa^0.5)) passes more than the fully open valve can deliver ({leak_lpm(K_valve):.3g} L/min "
+            f"at 10 MPa): a burst line, not a leak{hint}")
+
+
+def _check_offset(values: np.ndarray, unit: str, source) -> None:
+    worst = float(np.max(np.abs(values)))
+    hint = "" if unit == "%" else f"; if you meant {worst:g} %, write unit = \"%\""
+    if worst >= 1:
+        raise UserError(f"{where(source, 'faults.offset')}: an offset of {100 * worst:g} % of the spool travel; "
+                        f"|offset| must be below 100 % (a fraction below 1, or unit = \"%\")")
+    if worst > OFFSET_WARN:
+        warnings.warn(f"{where(source, 'faults.offset')}: an offset of {100 * worst:g} % of the spool travel, the "
+                      f"valve {100 * worst:g} % open at u = 0 (the paper studies up to 5 %){hint}",
+                      ScenarioWarning, stacklevel=4)
+
+
+def check_step(params: np.ndarray, time_varying: dict[str, np.ndarray], u: np.ndarray, dt: float, source,
+               field_: str) -> None:
+    """Refuse a step ``dt`` [s] that is unstable for the plant (:mod:`sam.stability`): checked for each
+    parameter row of ``params`` ((len(P),) or (n, len(P))), with the run's time-varying parameters at
+    their first, last and largest values, at rest and at the smallest and largest control signal."""
+    rows = []
+    for base in np.atleast_2d(params):
+        for pick in (lambda v: v[0], lambda v: v[-1], np.max):
+            row = np.array(base, dtype=float)
+            for name, values in time_varying.items():
+                row[P[name]] = pick(np.atleast_1d(values))
+            rows.append(row)
+    rows = np.array(rows)
+    u_values = (0.0, float(np.min(u)), float(np.max(u)))
+    worst = step_growth(rows, dt, u_values)
+    if worst.growth > STABLE_GROWTH:
+        stable = largest_stable_step(rows, u_values, dt)
+        raise UserError(
+            f"{where(source, field_)}: a step of {dt:g} s is unstable for this plant: the model's step "
+            f"multiplies a disturbance by {worst.growth:.3g} at each step (at u = {worst.u:g} V), so the run "
+            f"would diverge; the largest stable step is {stable * 1e3:.3g} ms (the paper's is 1 ms)")
+
+
+def load_mass_profile(table, t, source, field_: str = "load") -> dict[str, np.ndarray]:
+    """The ``[load]`` table: ``m_L_kg = ...`` or a profile of m_L [kg]; {"m_L": (n_steps,)} or {}.
+    ``field_``: where the table is in its file, for messages."""
     load = dict(_table(table, "load", source))
     if not load:
         return {}
+    for key in ("m_L_kg", "after_kg", "before_kg"):  # renamed below: checked under the user's own name
+        if key in load and (isinstance(load[key], bool) or not isinstance(load[key], (int, float))):
+            raise UserError(f"{where(source, f'{field_}.{key}')}: expected a number of kg, got {load[key]!r}")
     if "m_L_kg" in load:
         if len(load) > 1:
-            raise UserError(f"{where(source, 'load')}: give either m_L_kg or a profile (kind = ...), not both")
+            raise UserError(f"{where(source, field_)}: give either m_L_kg or a profile (kind = ...), not both")
         load = {"kind": "constant", "value": load["m_L_kg"]}
     spec = {("value" if k == "after_kg" else "before" if k == "before_kg" else k): v for k, v in load.items()}
-    m_L = evaluate(PROFILE_KINDS, spec, t, source, "load")
+    m_L = evaluate(PROFILE_KINDS, spec, t, source, field_)
     if np.any(m_L < 0):
-        raise UserError(f"{where(source, 'load')}: the load mass cannot be negative")
+        raise UserError(f"{where(source, field_)}: the load mass cannot be negative")
     return {"m_L": m_L}
 
 
@@ -214,9 +294,11 @@ def run_scenario(sc: Scenario) -> Recording:
     keep = np.arange(0, len(sc.t) + 1, sc.output_every)
     states = {name: values[0] for name, values in result.states.items()}
     bad = ~np.all([np.isfinite(v) for v in states.values()], axis=0)
-    if bad.any():  # never hand a user NaN silently
-        raise UserError(f"{where(sc.source, 'plant')}: the simulation left the finite range at "
-                        f"t = {result.t[np.argmax(bad)]:.4g} s; check the plant parameters and dt_s")
+    found = [diverged(states, params)] + ([(int(np.argmax(bad)), "a state is not finite")] if bad.any() else [])
+    if any(found):  # never hand a user NaN or nonsense silently
+        k, what = min(f for f in found if f)
+        raise UserError(f"{where(sc.source, 'dt_s')}: the simulation diverged at t = {result.t[k]:.4g} s "
+                        f"({what}); nothing was written. Check dt_s and the plant parameters")
     rng = np.random.default_rng(sc.seed)
     signals = measure(states, params, sc.dt, sc.sensors, rng)
     signals["u"] = _at(sc.u, keep)

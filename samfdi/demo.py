@@ -19,7 +19,7 @@ import io
 import time
 from pathlib import Path
 
-from sam.hydraulics import leak_coefficient
+from gsa.report import NEGLIGIBLE_ST, tied_ranking
 from sam.errors import UserError, output_folder
 from sam.plant import default_plant_path
 from sam.plotting import plot_recordings
@@ -75,7 +75,7 @@ def demo_command(args: argparse.Namespace) -> int:
     print(f"samfdi demo: writing to {out}/")
     t0 = time.perf_counter()
     healthy = run_scenario(scenario_from_table(demo_scenario(), out / "healthy.toml"))
-    leak = {"K_extA": {"kind": "step", "value": leak_coefficient(DEMO_LEAK_LPM), "t0_s": 1.0}}
+    leak = {"K_extA": {"kind": "step", "value": DEMO_LEAK_LPM, "unit": "L/min", "t0_s": 1.0}}
     leaking = run_scenario(scenario_from_table(demo_scenario(leak), out / "leak.toml"))
     write_recording(out / "healthy.csv", healthy)
     write_recording(out / "extA_leak.csv", leaking)
@@ -96,7 +96,6 @@ def demo_command(args: argparse.Namespace) -> int:
 def _demo_gsa(out: Path) -> None:
     """Stage 2: both paper studies at reduced N, through the same command a user runs."""
     from gsa.cli import run_command
-    from gsa.report import NEGLIGIBLE_ST, tied_ranking
 
     studies = default_plant_path().parents[1] / "gsa"
     for name in ("paper_parameters", "paper_leakage"):

@@ -144,6 +144,23 @@ def test_unknown_sam_parameter_is_named(tmp_path):
         load_study(path)
 
 
+@pytest.mark.parametrize("edit, words", [
+    (("dt_s = 0.001", "dt_s = 0.05\nevery_s = 0.1"), ["'simulation.dt_s'", "unstable", "largest stable step"]),
+    (("dt_s = 0.001", 'dt_s = "1 ms"'), ["'simulation.dt_s'", "positive number of seconds"]),
+    (("steady_from_s = 3.0", "steady_from_s = 9.0"), ["'simulation.steady_from_s'", "before the end"]),
+    (("m_L_kg = 494.0", 'm_L_kg = "494"'), ["'simulation.load.m_L_kg'", "number of kg"]),
+])
+def test_bad_sam_study_settings_are_named(tmp_path, edit, words):
+    text = (GSA / "paper_leakage.toml").read_text().replace("every_s = 0.01\n", "")
+    assert edit[0] in text
+    path = tmp_path / "bad.toml"
+    path.write_text(text.replace(*edit))
+    with pytest.raises(UserError) as err:
+        load_study(path)
+    for word in words:
+        assert word in str(err.value)
+
+
 def test_zero_variance_output_is_nan_with_warning_others_compute(tmp_path, capsys):
     """The leakage study's p_A at t = 0.01 s barely moves; a truly constant output (the spool
     position) is NaN with a warning while the other outputs still compute."""

@@ -252,6 +252,10 @@ CSV_CASES = [
     ("short-row", csv_text(GOOD) + "0.06,1,1e5\n", ["data row 7", "line 8", "'pB'"]),
     ("blank-inside", csv_text(GOOD).replace("\n0.03", "\n\n0.03"), ["data row 4", "blank line"]),
     ("empty-name", "t,u,pA,pB,,x\n0,0,1e5,1e5,0,0\n", ["column 5 has no name"]),
+    # a European spreadsheet's CSV: "missing column 't'" never named the delimiter
+    ("semicolons", csv_text(GOOD).replace(",", ";"), ["header (line 1) is one column", "separated by semicolons (';')",
+                                                      "',' as the separator"]),
+    ("tabs", csv_text(GOOD).replace(",", "\t"), ["separated by tabs", "'.' as the decimal mark"]),
 ]
 
 

@@ -138,6 +138,19 @@ def test_pwl_csv_input(tmp_path):
     ({"sensors": "[sensors]\nnoise = 1.0\n"}, ["sensors.noise", "unknown key"]),
     ({"head": "duration_s = -1\n"}, ["duration_s", "positive"]),
     ({"head": 'duration_s = 2.0\nplant = "nope.toml"\n'}, ["nope.toml", "not found"]),
+    # an L/min figure typed where K is expected: p_A reached 18.3 MPa on a 10 MPa supply, exit 0
+    ({"faults": '[faults.K_extA]\nkind = "step"\nvalue = 0.5\nt0_s = 1.0\n'},
+     ["'faults.K_extA'", "9.49e+07 L/min at 10 MPa", "more than the fully open valve", 'unit = "L/min"']),
+    ({"faults": '[faults.K_int]\nkind = "constant"\nvalue = 50.0\nunit = "L/min"\n'},
+     ["'faults.K_int'", "a leak of 50 L/min", "burst"]),
+    ({"faults": '[faults.K_int]\nkind = "constant"\nvalue = 0.5\nunit = "lpm"\n'}, ["faults.K_int.unit", "'lpm'"]),
+    ({"faults": '[faults.offset]\nkind = "constant"\nvalue = 150\nunit = "%"\n'}, ["faults.offset", "150 %"]),
+    # dt_s = 0.5 simulated garbage (true_v 3.6e26 m/s) with exit 0
+    ({"head": "duration_s = 2.0\ndt_s = 0.5\n"}, ["'dt_s'", "unstable", "largest stable step is 15.9 ms"]),
+    ({"head": "duration_s = 2.0\ndt_s = 0.02\n"}, ["'dt_s'", "unstable"]),
+    # a wrong type for m_L_kg was reported as 'load.value'
+    ({"load": '[load]\nm_L_kg = "494"\n'}, ["'load.m_L_kg'", "expected a number of kg", "'494'"]),
+    ({"load": '[load]\nkind = "step"\nafter_kg = "a lot"\nt0_s = 1.0\n'}, ["'load.after_kg'", "number of kg"]),
 ])
 def test_bad_scenarios_are_named(tmp_path, tables, words):
     path = write(tmp_path, "bad.toml", scenario_text(**tables))
@@ -145,6 +158,38 @@ def test_bad_scenarios_are_named(tmp_path, tables, words):
         load_scenario(path)
     for word in words:
         assert word in str(err.value)
+
+
+def test_fault_sizes_in_the_units_every_output_speaks(tmp_path):
+    text = scenario_text(faults='[faults.K_extA]\nkind = "step"\nvalue = 0.5\nunit = "L/min"\nt0_s = 1.0\n'
+                                '[faults.offset]\nkind = "constant"\nvalue = 2.0\nunit = "%"\n')
+    sc = load_scenario(write(tmp_path, "units.toml", text))
+    assert sc.time_varying["K_extA"][-1] == pytest.approx(0.5 * LPM / np.sqrt(10e6), rel=1e-12)
+    assert sc.time_varying["offset"][0] == pytest.approx(0.02)
+    text = scenario_text(faults='[faults.offset]\nkind = "constant"\nvalue = 0.5\n')  # 50 %: meant 0.5 %?
+    with pytest.warns(UserWarning, match=r"'faults.offset': an offset of 50 % .*if you meant 0.5 %, write unit"):
+        load_scenario(write(tmp_path, "offset.toml", text))
+
+
+def test_a_diverged_run_is_caught_not_written():
+    """What dt_s = 0.5 produced: finite garbage (v ~ 1e26 m/s), now recognised as divergence."""
+    from sam.stability import diverged
+
+    p = sam.load_plant().vector()
+    res = sam.simulate_batch(p, np.full(8, 2.5), 0.5)
+    states = {k: v[0] for k, v in res.states.items()}
+    k, what = diverged(states, p)
+    assert 0 < k < 8 and ("supply pressure" in what or "fully open valve" in what or "not finite" in what)
+    healthy = sam.simulate_batch(p, np.full(2000, 2.5), 1e-3)
+    assert diverged({k: v[0] for k, v in healthy.states.items()}, p) is None
+
+
+def test_plot_name_is_checked_before_the_recording_is_written(tmp_path, capsys):
+    """--plot x.jpgx failed after the CSV had been written."""
+    out = tmp_path / "run.csv"
+    assert main(["simulate", str(PAPER_STEP), "--out", str(out), "--plot", str(tmp_path / "x.jpgx")]) == 2
+    assert "x.jpgx: --plot: the file name must end in one of" in capsys.readouterr().err
+    assert not out.exists()
 
 
 def test_cli_simulate_writes_csv_mat_and_plot(tmp_path, capsys):
