@@ -33,7 +33,7 @@ from gsa.estimators import (
     sobol_indices,
 )
 from gsa.nonfinite import NonFiniteReport
-from gsa.problem import DISTRIBUTIONS, Problem
+from gsa.problem import DISTRIBUTIONS, SALIB_NAMES, Problem
 from gsa.runner import EXECUTORS, RunResult, Study, run
 
 __all__ = [
@@ -41,6 +41,7 @@ __all__ = [
     "DEFAULT_ESTIMATOR",
     "DISTRIBUTIONS",
     "ESTIMATORS",
+    "SALIB_NAMES",
     "EXECUTORS",
     "BootstrapResult",
     "Design",

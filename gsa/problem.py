@@ -3,19 +3,24 @@
 A :class:`Problem` is immutable and validated once, when it is built; everything
 downstream (design, runner, estimators) trusts it.
 
-Distributions, one per parameter, with what ``bounds[i]`` holds for each:
+Distributions, one per parameter, with what ``bounds[i]`` holds for each. The
+layouts are SALib's, so a SALib problem means the same here; SALib's names
+(in brackets) are accepted and stored under ours:
 
-============  =========================  ==========================================
-``dists[i]``  ``bounds[i]``              meaning
-============  =========================  ==========================================
-uniform       ``(lo, hi)``               U(lo, hi), lo < hi
-loguniform    ``(lo, hi)``               log X ~ U(log lo, log hi), 0 < lo < hi
-normal        ``(mean, sd)``             N(mean, sd^2), sd > 0
-normal        ``(mean, sd, lo, hi)``     N(mean, sd^2) truncated to [lo, hi], lo < hi
-============  =========================  ==========================================
+=========================  =========================  ==========================================
+``dists[i]``               ``bounds[i]``              meaning
+=========================  =========================  ==========================================
+uniform (unif)             ``(lo, hi)``               U(lo, hi), lo < hi
+loguniform (logunif)       ``(lo, hi)``               log X ~ U(log lo, log hi), 0 < lo < hi
+normal (norm)              ``(mean, sd)``             N(mean, sd^2), sd > 0
+truncnormal (truncnorm)    ``(lo, hi, mean, sd)``     N(mean, sd^2) truncated to [lo, hi], lo < hi
+lognormal (lognorm)        ``(mu, sigma)``            ln X ~ N(mu, sigma^2), sigma > 0 (natural log)
+triangular (triang)        ``(lo, hi, c)``            triangular on [lo, hi], peak at lo + c (hi - lo), 0 <= c <= 1
+=========================  =========================  ==========================================
 
-(``bounds`` follows SALib's habit of carrying the distribution's parameters; for
-the truncated normal the truncation limits are the physical bounds.)
+(A 4-value ``normal`` is refused: it was once (mean, sd, lo, hi) here while SALib's
+truncated normal is (lo, hi, mean, sd), and one layout read as the other is a
+valid but different distribution.)
 
 Values are in the parameter's own unit; the engine never looks at units.
 """
@@ -32,7 +37,13 @@ from scipy import stats
 
 from gsa.errors import GSAError
 
-DISTRIBUTIONS = ("uniform", "loguniform", "normal")
+DISTRIBUTIONS = ("uniform", "loguniform", "normal", "truncnormal", "lognormal", "triangular")
+#: SALib's distribution names -> ours (same layout of ``bounds``)
+SALIB_NAMES = {"unif": "uniform", "logunif": "loguniform", "norm": "normal", "truncnorm": "truncnormal",
+               "lognorm": "lognormal", "triang": "triangular"}
+_N_VALUES = {"uniform": 2, "loguniform": 2, "normal": 2, "truncnormal": 4, "lognormal": 2, "triangular": 3}
+_LAYOUT = {"uniform": "(lo, hi)", "loguniform": "(lo, hi)", "normal": "(mean, sd)",
+           "truncnormal": "(lo, hi, mean, sd)", "lognormal": "(mu, sigma) of ln X", "triangular": "(lo, hi, c)"}
 
 # U = 0 or 1 maps to -inf/+inf through an unbounded ppf; a scrambled Sobol' point can
 # hit 0 exactly (its values are multiples of 2^-bits), so such U are nudged inwards.
@@ -78,19 +89,25 @@ class Problem:
     # -- construction -------------------------------------------------------------
     @classmethod
     def from_dict(cls, spec: Mapping) -> Problem:
-        """Build from a SALib-like mapping ``{"names", "bounds", "dists"?, "groups"?}``."""
+        """Build from a SALib problem dict ``{"num_vars"?, "names", "bounds", "dists"?, "groups"?,
+        "outputs"?}`` (SALib's distribution names and layouts; ``outputs`` names the model's
+        outputs and is not part of a Problem)."""
         if not isinstance(spec, Mapping):
             raise GSAError(f"a problem must be a mapping, got {type(spec).__name__}")
-        unknown = sorted(set(spec) - {"names", "bounds", "dists", "groups", "num_vars"})
+        unknown = sorted(set(spec) - {"names", "bounds", "dists", "groups", "num_vars", "outputs"})
         if unknown:
             raise GSAError(
-                f"problem: unknown key(s) {unknown}; expected names, bounds, dists, groups"
+                f"problem: unknown key(s) {unknown}; expected names, bounds, dists, groups (num_vars, outputs)"
             )
         for key in ("names", "bounds"):
             if key not in spec:
                 raise GSAError(f"problem: missing key '{key}'")
+        names = spec["names"]
+        if "num_vars" in spec and (not isinstance(names, Sequence) or spec["num_vars"] != len(names)):
+            raise GSAError(f"problem: num_vars is {spec['num_vars']!r} but names lists "
+                           f"{len(names) if isinstance(names, Sequence) else 'no'} parameters")
         return cls(
-            names=spec["names"],
+            names=names,
             bounds=spec["bounds"],
             dists=spec.get("dists"),
             groups=spec.get("groups"),
@@ -102,6 +119,17 @@ class Problem:
             "names": list(self.names),
             "bounds": [list(b) for b in self.bounds],
             "dists": list(self.dists),
+            "groups": None if self.groups is None else list(self.groups),
+        }
+
+    def to_salib(self) -> dict:
+        """The same problem as SALib's problem dict (its distribution names)."""
+        salib = {ours: theirs for theirs, ours in SALIB_NAMES.items()}
+        return {
+            "num_vars": self.k,
+            "names": list(self.names),
+            "bounds": [list(b) for b in self.bounds],
+            "dists": [salib[d] for d in self.dists],
             "groups": None if self.groups is None else list(self.groups),
         }
 
@@ -181,12 +209,16 @@ def _as_dists(dists, names) -> tuple[str, ...]:
         raise GSAError(
             f"problem: dists must list one distribution per parameter ({len(names)}), got {dists!r}"
         )
+    out = []
     for name, dist in zip(names, dists):
+        dist = SALIB_NAMES.get(dist, dist) if isinstance(dist, str) else dist
         if dist not in DISTRIBUTIONS:
             raise GSAError(
-                f"parameter '{name}': unknown distribution {dist!r} (known: {', '.join(DISTRIBUTIONS)})"
+                f"parameter '{name}': unknown distribution {dist!r} (known: {', '.join(DISTRIBUTIONS)}, "
+                f"or SALib's {', '.join(SALIB_NAMES)})"
             )
-    return tuple(dists)
+        out.append(dist)
+    return tuple(out)
 
 
 def _as_bounds(bounds, names, dists) -> tuple[tuple[float, ...], ...]:
@@ -207,28 +239,26 @@ def _as_bounds(bounds, names, dists) -> tuple[tuple[float, ...], ...]:
 
 
 def _check_marginal(name: str, dist: str, b: tuple[float, ...]) -> None:
-    if dist in ("uniform", "loguniform"):
-        if len(b) != 2:
-            raise GSAError(f"parameter '{name}': {dist} needs bounds (lo, hi), got {b}")
-        lo, hi = b
+    if len(b) != _N_VALUES[dist]:
+        hint = (" (a truncated normal is 'truncnormal' with (lo, hi, mean, sd), SALib's order)"
+                if dist == "normal" and len(b) == 4 else "")
+        raise GSAError(f"parameter '{name}': {dist} needs bounds {_LAYOUT[dist]}, got {b}{hint}")
+    if dist in ("uniform", "loguniform", "truncnormal", "triangular"):
+        lo, hi = b[0], b[1]
         if not lo < hi:
             raise GSAError(
                 f"parameter '{name}': lower bound must be below upper bound, got lo={lo:g}, hi={hi:g}"
             )
         if dist == "loguniform" and lo <= 0:
             raise GSAError(f"parameter '{name}': loguniform needs lo > 0, got lo={lo:g}")
-    elif dist == "normal":
-        if len(b) not in (2, 4):
-            raise GSAError(
-                f"parameter '{name}': normal needs (mean, sd) or (mean, sd, lo, hi), got {b}"
-            )
-        if not b[1] > 0:
-            raise GSAError(f"parameter '{name}': normal needs sd > 0, got sd={b[1]:g}")
-        if len(b) == 4 and not b[2] < b[3]:
-            raise GSAError(
-                f"parameter '{name}': truncation lower bound must be below upper bound, "
-                f"got lo={b[2]:g}, hi={b[3]:g}"
-            )
+    if dist in ("normal", "lognormal") and not b[1] > 0:
+        raise GSAError(f"parameter '{name}': {dist} needs {'sd' if dist == 'normal' else 'sigma'} > 0, "
+                       f"got {'sd' if dist == 'normal' else 'sigma'}={b[1]:g}")
+    if dist == "truncnormal" and not b[3] > 0:
+        raise GSAError(f"parameter '{name}': truncnormal needs sd > 0, got sd={b[3]:g}")
+    if dist == "triangular" and not 0 <= b[2] <= 1:
+        raise GSAError(f"parameter '{name}': triangular needs the peak's position c in [0, 1] "
+                       f"(a fraction of hi - lo), got c={b[2]:g}")
 
 
 def _as_groups(groups, names) -> tuple[str, ...]:
@@ -248,13 +278,17 @@ def _marginal(dist: str, b: tuple[float, ...]):
         return stats.uniform(loc=b[0], scale=b[1] - b[0])
     if dist == "loguniform":
         return stats.loguniform(b[0], b[1])
-    mean, sd = b[0], b[1]
-    if len(b) == 2:
-        return stats.norm(loc=mean, scale=sd)
-    return stats.truncnorm((b[2] - mean) / sd, (b[3] - mean) / sd, loc=mean, scale=sd)
+    if dist == "normal":
+        return stats.norm(loc=b[0], scale=b[1])
+    if dist == "truncnormal":
+        lo, hi, mean, sd = b
+        return stats.truncnorm((lo - mean) / sd, (hi - mean) / sd, loc=mean, scale=sd)
+    if dist == "lognormal":
+        return stats.lognorm(s=b[1], scale=math.exp(b[0]))
+    return stats.triang(c=b[2], loc=b[0], scale=b[1] - b[0])
 
 
 def _clip_unbounded(dist: str, b: tuple[float, ...], u: np.ndarray) -> np.ndarray:
-    if dist == "normal" and len(b) == 2:
+    if dist in ("normal", "lognormal"):
         return np.clip(u, _U_MIN, _U_MAX)
     return u

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from gsa.problem import DISTRIBUTIONS, Problem
+from gsa.problem import DISTRIBUTIONS, SALIB_NAMES, Problem
 from gsa.runner import Study
 from gsa.testfunctions import ishigami, ishigami_indices, sobol_g, sobol_g_indices
 from sam.constants import LPM
@@ -112,17 +112,16 @@ def _problem(table, source) -> tuple[Problem, tuple[str, ...]]:
             raise UserError(f"{where(source, field_)}: expected a table")
         _no_unknown(spec, _PARAM_KEYS, source, field_ + ".")
         dist = spec.get("distribution", "uniform")
-        if dist not in DISTRIBUTIONS:
+        if dist not in DISTRIBUTIONS and dist not in SALIB_NAMES:
             raise UserError(f"{where(source, field_ + '.distribution')}: unknown distribution {dist!r}; "
-                            f"expected one of {list(DISTRIBUTIONS)}")
+                            f"expected one of {list(DISTRIBUTIONS)} (or SALib's {list(SALIB_NAMES)})")
         b = spec.get("bounds")
-        if not isinstance(b, list) or len(b) not in (2, 4) or not all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in b):
-            raise UserError(f"{where(source, field_ + '.bounds')}: expected [low, high] "
-                            f"(normal: [mean, sd] or [mean, sd, low, high]), got {b!r}")
-        if dist != "normal" and not b[0] < b[1]:
-            raise UserError(f"{where(source, field_ + '.bounds')}: lower bound {b[0]} must be below "
-                            f"upper bound {b[1]}")
+        if not isinstance(b, list) or not all(_is_number(v) for v in b):
+            raise UserError(f"{where(source, field_ + '.bounds')}: expected a list of finite numbers, got {b!r}")
+        try:  # the layout each distribution takes is the engine's (gsa.problem), said once there
+            Problem(names=(name,), bounds=(b,), dists=(dist,))
+        except ValueError as exc:
+            raise UserError(f"{where(source, field_ + '.bounds')}: {exc}") from None
         unit = spec.get("unit", "1")
         if unit not in UNITS:
             raise UserError(f"{where(source, field_ + '.unit')}: unknown unit {unit!r}; expected one of {list(UNITS)}")

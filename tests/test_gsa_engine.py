@@ -3,6 +3,7 @@ bootstrap correctness and memory, and the validation at its boundary."""
 
 from __future__ import annotations
 
+import copy
 import subprocess
 import sys
 import tracemalloc
@@ -143,8 +144,8 @@ def test_linear_additive_model_with_mixed_distributions():
     """sum S1 = 1 and S1 = ST (within CIs) for y = sum c_i x_i, any marginals."""
     problem = Problem(
         names=("u", "logu", "n", "tn"),
-        bounds=((1.0, 3.0), (0.1, 10.0), (2.0, 0.5), (0.0, 1.0, -1.0, 1.5)),
-        dists=("uniform", "loguniform", "normal", "normal"),
+        bounds=((1.0, 3.0), (0.1, 10.0), (2.0, 0.5), (-1.0, 1.5, 0.0, 1.0)),
+        dists=("uniform", "loguniform", "normal", "truncnormal"),
     )
     c = np.array([1.0, 0.3, -2.0, 1.5])
     var = np.array(
@@ -321,6 +322,27 @@ def test_constant_output_gives_nan_with_one_warning_others_unchanged(ishigami_ru
     assert result.constant.tolist() == [False, True, False]
 
 
+def test_a_tiny_but_real_spread_is_computed_and_rounding_is_not():
+    """A relative spread of 1e-12 was declared constant (NaN); SALib and scipy compute it. The
+    tolerance is 10 ulps of the output (gsa.estimators.CONSTANT_ULPS): below it, rounding."""
+    salib_sobol = pytest.importorskip("SALib.analyze.sobol")
+    problem = tf.ishigami_problem()
+    design = saltelli_design(problem, 2**10, seed=5)
+    g = tf.ishigami(design.X).ravel()
+    tiny = 1.0 + 0.9e-12 * (g - g.min()) / np.ptp(g)  # spread 0.9e-12 of its magnitude: ~4000 ulps
+    ulps = 1.0 + np.spacing(1.0) * np.round(4 * (g - g.min()) / np.ptp(g))  # 5 levels of rounding
+    with pytest.warns(ZeroVarianceWarning, match="1 of 2 outputs"):
+        result = analyze(problem, design, np.c_[tiny, ulps], n_boot=0, output_names=["tiny", "ulps"])
+    assert result.constant.tolist() == [False, True]
+    exact = analyze(problem, design, g, n_boot=0)
+    np.testing.assert_allclose(result.S1[:, 0], exact.S1[:, 0], atol=2e-3)
+    S = salib_sobol.analyze({"num_vars": 3, "names": list(problem.names), "bounds": [list(b) for b in problem.bounds]},
+                            tiny[_salib_order(design)], calc_second_order=False, num_resamples=10, seed=1)
+    # to within the values' own quantisation (1 / 4000): both sum rounded differences of them
+    np.testing.assert_allclose(result.S1[:, 0], S["S1"], atol=1e-4)
+    np.testing.assert_allclose(result.ST[:, 0], S["ST"], atol=1e-4)
+
+
 def test_nonfinite_outputs_refused_or_dropped_explicitly():
     problem = tf.ishigami_problem()
     design = saltelli_design(problem, 2**10, seed=1)
@@ -357,7 +379,13 @@ def test_non_power_of_two_warns_exactly_once():
         (dict(names=(), bounds=()), r"at least one parameter"),
         (dict(names=("q",), bounds=((0, 1),), dists=("loguniform",)), r"'q'.*lo > 0, got lo=0"),
         (dict(names=("s",), bounds=((1, -2),), dists=("normal",)), r"'s'.*sd > 0, got sd=-2"),
-        (dict(names=("t",), bounds=((0, 1, 3, 2),), dists=("normal",)), r"'t'.*lo=3, hi=2"),
+        (dict(names=("t",), bounds=((3, 2, 0, 1),), dists=("truncnormal",)), r"'t'.*lo=3, hi=2"),
+        # SALib's truncated-normal layout under "normal" was read as mean -0.5, sd 2
+        (dict(names=("t",), bounds=((-0.5, 2, 0.5, 0.3),), dists=("normal",)),
+         r"'t': normal needs bounds \(mean, sd\).*'truncnormal' with \(lo, hi, mean, sd\)"),
+        (dict(names=("r",), bounds=((0, 1, 1.5),), dists=("triang",)), r"'r'.*peak's position c in \[0, 1\]"),
+        (dict(names=("m",), bounds=((0, 0),), dists=("lognorm",)), r"'m'.*lognormal needs sigma > 0"),
+        (dict(names=("w",), bounds=((1, 2),), dists=("weibull",)), r"'w'.*unknown distribution 'weibull'"),
         (dict(names=("a",), bounds=((0, float("nan")),)), r"'a'.*finite"),
         (dict(names=("a", "b"), bounds=((0, 1),)), r"bounds has 1 entries but there are 2"),
     ],
@@ -386,8 +414,8 @@ def test_design_validation():
 def test_transform_applies_each_marginal():
     problem = Problem(
         names=("u", "l", "n", "t"),
-        bounds=((2, 4), (1e-3, 1e-1), (5, 2), (0, 1, -0.5, 0.5)),
-        dists=("uniform", "loguniform", "normal", "normal"),
+        bounds=((2, 4), (1e-3, 1e-1), (5, 2), (-0.5, 0.5, 0, 1)),
+        dists=("uniform", "loguniform", "normal", "truncnormal"),
     )
     X = problem.transform(np.array([[0.5] * 4, [0.0] * 4, [0.975] * 4]))
     np.testing.assert_allclose(X[0], [3.0, 1e-2, 5.0, 0.0], atol=1e-12)
@@ -395,6 +423,32 @@ def test_transform_applies_each_marginal():
     assert np.isfinite(X[1, 2])  # U = 0 of an unbounded normal stays finite
     assert X[2, 2] == pytest.approx(5 + 2 * 1.959964, rel=1e-6)
     assert -0.5 <= X[2, 3] <= 0.5
+
+
+@pytest.mark.parametrize("dist, bounds", [
+    ("unif", [-1.0, 3.0]), ("logunif", [1e-3, 1e-1]), ("norm", [2.0, 0.5]),
+    ("truncnorm", [-0.5, 2.0, 0.5, 0.3]), ("lognorm", [0.2, 0.4]), ("triang", [1.0, 3.0, 0.25]),
+])
+def test_salib_problems_mean_the_same_here(dist, bounds):
+    """A SALib problem dict, its names and layouts, samples exactly as SALib samples it."""
+    from SALib.util import scale_samples
+
+    salib = {"num_vars": 2, "names": ["a", "b"], "bounds": [bounds, [0.0, 1.0]], "dists": [dist, "unif"],
+             "outputs": ["y"]}
+    problem = Problem.from_dict(salib)
+    assert problem.dists[0] in ("uniform", "loguniform", "normal", "truncnormal", "lognormal", "triangular")
+    U = np.random.default_rng(3).uniform(0.001, 0.999, (500, 2))
+    np.testing.assert_allclose(problem.transform(U), scale_samples(U.copy(), copy.deepcopy(salib)), rtol=1e-12, atol=1e-12)
+    assert Problem.from_dict(problem.to_salib()) == problem
+    with pytest.raises(GSAError, match="num_vars is 3 but names lists 2"):
+        Problem.from_dict({**salib, "num_vars": 3})
+
+
+def test_lognormal_and_triangular_marginals():
+    problem = Problem(names=("l", "t"), bounds=((0.5, 0.25), (2.0, 6.0, 0.75)), dists=("lognormal", "triangular"))
+    X = problem.transform(np.array([[0.5, 0.0], [0.5, 1.0], [0.5, 0.75]]))
+    assert X[0, 0] == pytest.approx(np.exp(0.5))  # the median of ln X ~ N(0.5, 0.25^2)
+    assert (X[0, 1], X[1, 1]) == (2.0, 6.0) and X[2, 1] == pytest.approx(5.0)  # CDF 0.75 at the peak 2 + 0.75 * 4
 
 
 def test_design_layout_and_groups():
