@@ -68,7 +68,7 @@ def quantise_angle(theta: np.ndarray) -> np.ndarray:
 
 def measure(states: dict[str, np.ndarray], params: np.ndarray, dt: float, sensors: Sensors,
             rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """Sensor signals of one run, named as in recording-format.md.
+    """Sensor signals of one run, named as in docs/recordings.md.
 
     Args:
         states: state name -> (n,) trajectory (from :class:`sam.simulate.BatchResult`), at step ``dt``.

@@ -15,7 +15,7 @@ from scipy.signal import chirp as _chirp
 
 from .errors import UserError, where
 
-U_LIMIT_V = 10.0  #: V, the valve's control range (recording-format.md)
+U_LIMIT_V = 10.0  #: V, the valve's control range (docs/recordings.md)
 
 
 # --- control signals u(t) [V] ----------------------------------------------------------

@@ -1,7 +1,6 @@
 """Recordings: one run of the valve-controlled cylinder, as CSV or MATLAB ``.mat``.
 
-The file format is the contract in ``recording-format.md`` (see also
-``docs/recordings.md``): SI units, exact column names, ``true_*`` columns for
+The file format is the contract in ``docs/recordings.md``: SI units, exact column names, ``true_*`` columns for
 simulator ground truth. Files may come from any data logger, so the reader
 trusts nothing and refuses a bad file with one :class:`RecordingError` that
 names the file, the column and, where it applies, the row.

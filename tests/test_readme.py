@@ -1,0 +1,88 @@
+"""The README's commands run as written, in order, on a fresh folder.
+
+The README promises that every command it shows runs as written. The fast test
+parses each one with the real command line; the slow one runs the whole block in
+order in a temporary folder (``scenarios/`` linked to this repository's), each
+command on what the ones before it made. CI runs it reduced: the Monte Carlo and
+GSA sizes of the fdi commands are cut (:data:`REDUCED`), which changes how long
+they take, not which code runs. ``SAMFDI_README_FULL=1`` runs the block exactly as
+written (about half an hour on 2 cores).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from samfdi.cli import build_parser
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+#: option -> the value CI runs it with, replacing the README's; per subcommand, options added when
+#: the subcommand has them (their defaults are the expensive part)
+REDUCED = {"--runs": "5", "--n": "128"}
+ADDED = {("fdi", "thresholds"): {"--n-leak": "4", "--n-nuisance": "8"}}
+
+
+def readme_commands() -> list[list[str]]:
+    """The command lines of the README's "Commands" block, comments removed, as argument lists."""
+    text = README.read_text()
+    section = text[text.index("## Commands"):]
+    block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
+    return [args for args in (shlex.split(line, comments=True) for line in block.splitlines()) if args]
+
+
+def test_the_readme_starts_with_the_two_lines():
+    lines = README.read_text().splitlines()
+    assert 'python3 -m venv .venv && . .venv/bin/activate && pip install -e . && samfdi demo' in lines
+    assert ('python3 -m venv .venv && . .venv/bin/activate && pip install -e ".[test]" && python -m pytest -q'
+            in lines)
+
+
+@pytest.mark.parametrize("args", readme_commands(), ids=lambda a: " ".join(a[1:4]))
+def test_every_readme_command_parses_and_names_shipped_files(args):
+    """No placeholders ([--n N], DIR): each line is a command the parser accepts as it stands."""
+    assert args[0] == "samfdi"
+    build_parser().parse_args(args[1:])
+    for arg in args:
+        if arg.startswith("scenarios/"):
+            assert (ROOT / arg).exists(), arg
+
+
+def _subcommand_options(path: tuple[str, ...]) -> set[str]:
+    parser = build_parser()
+    for name in path:
+        sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+        parser = sub.choices[name]
+    return {opt for a in parser._actions for opt in a.option_strings}
+
+
+def reduced(args: list[str]) -> list[str]:
+    out = list(args)
+    for i, arg in enumerate(out[:-1]):
+        if arg in REDUCED:
+            out[i + 1] = REDUCED[arg]
+    path = tuple(a for a in out[1:3] if not a.startswith("-"))
+    for option, value in ADDED.get(path, {}).items():
+        if option in _subcommand_options(path) and option not in out:
+            out += [option, value]
+    return out
+
+
+@pytest.mark.slow
+def test_the_readme_commands_run_in_order(tmp_path):
+    (tmp_path / "scenarios").symlink_to(ROOT / "scenarios")
+    full = os.environ.get("SAMFDI_README_FULL") == "1"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    for args in readme_commands():
+        run = args if full else reduced(args)
+        done = subprocess.run([sys.executable, "-m", "samfdi", *run[1:]], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=3600)
+        assert done.returncode == 0, f"{' '.join(args)} failed:\n{done.stderr[-2000:]}"
+        assert "Traceback" not in done.stderr, done.stderr
