@@ -36,7 +36,7 @@ this package imports nothing of the application.
 from chunkstore.compute import Chunk, compute
 from chunkstore.errors import LockedError, StoreError, StoreWarning
 from chunkstore.lock import FolderLock
-from chunkstore.pool import EXECUTORS, die_with_parent, execute, process_pool
+from chunkstore.pool import EXECUTORS, check_executor, die_with_parent, execute, process_pool
 from chunkstore.store import Store, differences
 
 __all__ = [
@@ -47,6 +47,7 @@ __all__ = [
     "Store",
     "StoreError",
     "StoreWarning",
+    "check_executor",
     "compute",
     "die_with_parent",
     "differences",

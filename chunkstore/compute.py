@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -11,7 +10,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from chunkstore.errors import StoreError
-from chunkstore.pool import EXECUTORS, execute
+from chunkstore.pool import check_executor, execute
 from chunkstore.store import Store
 
 
@@ -104,13 +103,4 @@ def _check_args(store, tasks, executor, workers, scheduler) -> None:
         raise StoreError(f"tasks must map chunk keys to argument tuples, got {type(tasks).__name__}")
     for key in tasks:
         store.path(key)  # checks the key
-    if executor not in EXECUTORS:
-        raise StoreError(f"unknown executor {executor!r} (known: {', '.join(EXECUTORS)})")
-    if workers is not None and (
-        isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1
-    ):
-        raise StoreError(f"workers must be an integer >= 1, got {workers!r}")
-    if executor == "dask" and not scheduler:
-        raise StoreError("executor 'dask' needs a scheduler address, e.g. tcp://127.0.0.1:8786")
-    if scheduler and executor != "dask":
-        raise StoreError(f"a scheduler address is only used by executor 'dask', not {executor!r}")
+    check_executor(executor, workers, scheduler)

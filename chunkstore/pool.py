@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import ctypes
 import multiprocessing
+import numbers
 import os
 import signal
 import sys
@@ -63,6 +64,21 @@ def _watch_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, name="chunkstore-parent-watch", daemon=True).start()
 
 
+def check_executor(executor: str, workers: int | None = None, scheduler: str | None = None) -> None:
+    """StoreError unless ``executor`` is known, ``workers`` is None or an integer >= 1, and a
+    scheduler address is given exactly when the executor is "dask"."""
+    if executor not in EXECUTORS:
+        raise StoreError(f"unknown executor {executor!r} (known: {', '.join(EXECUTORS)})")
+    if workers is not None and (
+        isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1
+    ):
+        raise StoreError(f"workers must be an integer >= 1, got {workers!r}")
+    if executor == "dask" and not scheduler:
+        raise StoreError("executor 'dask' needs a scheduler address, e.g. tcp://127.0.0.1:8786")
+    if scheduler and executor != "dask":
+        raise StoreError(f"a scheduler address is only used by executor 'dask', not {executor!r}")
+
+
 def execute(
     fn: Callable,
     tasks: Mapping[str, tuple],
@@ -72,8 +88,7 @@ def execute(
     scheduler: str | None = None,
 ) -> Iterator[tuple[str, object]]:
     """Yield ``(key, fn(*tasks[key]))`` as the tasks finish (see the module docstring)."""
-    if executor not in EXECUTORS:
-        raise StoreError(f"unknown executor {executor!r} (known: {', '.join(EXECUTORS)})")
+    check_executor(executor, workers, scheduler)
     return _EXECUTE[executor](fn, tasks, workers=workers, scheduler=scheduler)
 
 

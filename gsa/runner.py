@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from chunkstore import EXECUTORS, Store, StoreError, compute
+from chunkstore import EXECUTORS, Store, StoreError, check_executor, compute
 from gsa.analyze import SobolResult, analyze
 from gsa.design import Design
 from gsa.errors import GSAError
@@ -221,16 +221,10 @@ def _check_args(study, design, chunk_size, executor, workers, scheduler, nonfini
         raise GSAError(f"study '{study.name}': the design was built for a different problem")
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, numbers.Integral) or chunk_size < 1:
         raise GSAError(f"chunk_size must be an integer >= 1, got {chunk_size!r}")
-    if executor not in EXECUTORS:
-        raise GSAError(f"unknown executor {executor!r} (known: {', '.join(EXECUTORS)})")
-    if workers is not None and (
-        isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1
-    ):
-        raise GSAError(f"workers must be an integer >= 1, got {workers!r}")
-    if executor == "dask" and not scheduler:
-        raise GSAError("executor 'dask' needs a scheduler address, e.g. tcp://127.0.0.1:8786")
-    if scheduler and executor != "dask":
-        raise GSAError(f"a scheduler address is only used by executor 'dask', not {executor!r}")
+    try:
+        check_executor(executor, workers, scheduler)
+    except StoreError as e:
+        raise GSAError(str(e)) from None
     if nonfinite not in NONFINITE_POLICIES:
         raise GSAError(f"nonfinite must be one of {NONFINITE_POLICIES}, got {nonfinite!r}")
     if executor == "processes":

@@ -19,46 +19,33 @@ from collections.abc import Callable
 
 def integer(minimum: int | None = None, maximum: int | None = None) -> Callable[[str], int]:
     """An argparse type: a whole number within [minimum, maximum] (either may be open)."""
-    rule = _rule("an integer", minimum, maximum, None)
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {rule}, got {text!r}") from None
-        if (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
-            raise argparse.ArgumentTypeError(f"expected {rule}, got {text!r}")
-        return value
-
-    parse.__name__ = "integer"  # argparse names the type in its own messages
-    return parse
+    return _typed(int, "integer", _rule("an integer", minimum, maximum, None),
+                  lambda v: (minimum is None or v >= minimum) and (maximum is None or v <= maximum))
 
 
 def real(minimum: float | None = None, maximum: float | None = None, *,
          above: float | None = None) -> Callable[[str], float]:
     """An argparse type: a finite number within [minimum, maximum], and > ``above`` if given."""
-    rule = _rule("a finite number", minimum, maximum, above)
+    return _typed(float, "number", _rule("a finite number", minimum, maximum, above),
+                  lambda v: (math.isfinite(v) and (minimum is None or v >= minimum)
+                             and (maximum is None or v <= maximum) and (above is None or v > above)))
 
-    def parse(text: str) -> float:
+
+def _typed(convert, name: str, rule: str, ok) -> Callable[[str], int | float]:
+    def parse(text: str):
         try:
-            value = float(text)
+            value = convert(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {rule}, got {text!r}") from None
-        if (not math.isfinite(value) or (minimum is not None and value < minimum)
-                or (maximum is not None and value > maximum) or (above is not None and not value > above)):
+            value = None
+        if value is None or not ok(value):
             raise argparse.ArgumentTypeError(f"expected {rule}, got {text!r}")
         return value
 
-    parse.__name__ = "number"
+    parse.__name__ = name  # argparse names the type in its own messages
     return parse
 
 
 def _rule(what: str, minimum, maximum, above) -> str:
-    parts = [what]
-    if above is not None:
-        parts.append(f"> {above:g}")
-    if minimum is not None:
-        parts.append(f">= {minimum:g}")
-    if maximum is not None:
-        parts.append(f"<= {maximum:g}")
-    return " ".join(parts[:1]) + (" " + " and ".join(parts[1:]) if len(parts) > 1 else "")
+    limits = [f"{sign} {bound:g}" for sign, bound in ((">", above), (">=", minimum), ("<=", maximum))
+              if bound is not None]
+    return what + (" " + " and ".join(limits) if limits else "")
