@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from gsa.bootstrap import CI_METHODS
 from gsa.problem import DISTRIBUTIONS, SALIB_NAMES, Problem
 from gsa.runner import Study
 from gsa.testfunctions import ishigami, ishigami_indices, sobol_g, sobol_g_indices
@@ -84,10 +85,13 @@ def study_from_table(table: dict[str, Any], source: Path) -> StudySpec:
     if isinstance(n_boot, bool) or not isinstance(n_boot, int) or n_boot < MIN_BOOTSTRAP:
         raise UserError(f"{where(source, 'n_bootstrap')}: expected an integer >= {MIN_BOOTSTRAP} (resamples "
                         f"for the 95 % intervals), got {n_boot!r}")
+    ci = table.get("ci", "percentile")
+    if ci not in CI_METHODS:
+        raise UserError(f"{where(source, 'ci')}: expected one of {list(CI_METHODS)}, got {ci!r}")
     problem, units = _problem(table, source)
     name = str(table.get("name", source.stem))
     common = dict(N=N, seed=seed, estimator=table.get("estimator"), n_bootstrap=n_boot,
-                  ci=str(table.get("ci", "percentile")), units=units,
+                  ci=ci, units=units,
                   description=str(table.get("description", "")), source=source,
                   factor_words=_factor_words(table["parameters"], problem))
     if model == "sam":
@@ -181,13 +185,17 @@ def _analytic_study(table, source, name, model, problem, common) -> StudySpec:
         _no_unknown(options, {"a", "b"}, source, "model_options.")
         if k != 3:
             raise UserError(f"{where(source, 'parameters')}: the Ishigami function has 3 parameters, got {k}")
-        a, b = float(options.get("a", 7.0)), float(options.get("b", 0.1))
+        a, b = options.get("a", 7.0), options.get("b", 0.1)
+        for key, value in (("a", a), ("b", b)):
+            if not _is_number(value):
+                raise UserError(f"{where(source, f'model_options.{key}')}: expected a number, got {value!r}")
         func, exact = functools.partial(ishigami, a=a, b=b), ishigami_indices(a, b)
     else:
         _no_unknown(options, {"a"}, source, "model_options.")
         a = options.get("a")
-        if not isinstance(a, list) or len(a) != k:
-            raise UserError(f"{where(source, 'model_options.a')}: needs one a_i per parameter ({k})")
+        if not isinstance(a, list) or len(a) != k or not all(_is_number(v) and v >= 0 for v in a):
+            raise UserError(f"{where(source, 'model_options.a')}: needs one number a_i >= 0 per parameter ({k}), "
+                            f"got {a!r}")
         func, exact = functools.partial(sobol_g, a=np.asarray(a, float)), sobol_g_indices(a)
     study = Study(name, problem, func, output_names=(model,))
     return StudySpec(study=study, analytic=exact, **common)
@@ -230,7 +238,10 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
         else:
             time_varying = {"m_L": m}
     check_step(_corners(base, problem, units), time_varying or {}, u, dt, source, "simulation.dt_s")
-    outputs = tuple(sim.get("outputs", ["p_A", "p_B", "v"]))
+    outputs = sim.get("outputs", ["p_A", "p_B", "v"])
+    if not isinstance(outputs, list) or not outputs:
+        raise UserError(f"{where(source, 'simulation.outputs')}: expected a list of state names, got {outputs!r}")
+    outputs = tuple(outputs)
     for o in outputs:
         if o not in sam.S.__members__:
             raise UserError(f"{where(source, 'simulation.outputs')}: unknown output {o!r}; "

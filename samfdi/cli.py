@@ -66,6 +66,14 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"samfdi: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except MemoryError as exc:  # a size no check foresaw: still one line, not a traceback
+        print(f"samfdi: error: not enough memory ({exc}); ask for a smaller run (duration, --n, --runs)",
+              file=sys.stderr)
+        return EXIT_USER_ERROR
+    except OSError as exc:  # the machine's answer (disk full, permission, device gone), not a bug of ours
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"samfdi: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print("samfdi: interrupted", file=sys.stderr)
         return 130

@@ -122,3 +122,32 @@ def test_warnings_of_a_study_name_the_study(tmp_path, capsys):
     assert warnings and all(ln.startswith("samfdi: warning: study 'paper_leakage': ") for ln in warnings)
     assert np.isnan(float(next(r for r in (tmp_path / "o" / "indices.csv").read_text().splitlines()[1:]
                                if r.startswith("x_s,")).split(",")[3]))
+
+
+# -- sizes and values no specific check foresaw ------------------------------------------------
+
+
+def test_a_run_too_large_for_memory_is_one_line(tmp_path, capsys):
+    scenario = tmp_path / "huge.toml"
+    scenario.write_text('duration_s = 1e9\n[input]\nkind = "step"\namplitude_V = 2.5\n')
+    line = refused(capsys, "simulate", str(scenario), "--out", str(tmp_path / "r.csv"))
+    assert "not enough memory" in line and "smaller run" in line
+
+
+@pytest.mark.parametrize("study, edit, words", [
+    ("ishigami.toml", ("b = 0.1 }", 'b = "0.1" }'), ["'model_options.b'", "a number"]),
+    ("sobol_g.toml", ("a = [", 'a = ["x", '), ["'model_options.a'", "a_i >= 0"]),
+    ("sobol_g.toml", ("seed = ", 'ci = "student"\nseed = '), ["'ci'", "'student'"]),
+    ("paper_leakage.toml", ('outputs = ["p_A", "p_B", "v"]', 'outputs = "p_A"'), ["'simulation.outputs'", "list"]),
+    ("paper_leakage.toml", ("bounds = [0.0, 5.27e-9]", "bounds = [0.0, nan]"), ["'parameters.K_int.bounds'", "finite"]),
+    ("paper_leakage.toml", ("n_bootstrap = 1000", "n_bootstrap = 0"), ["'n_bootstrap'", ">= 40"]),
+])
+def test_study_values_are_checked_when_the_file_is_read(tmp_path, capsys, study, edit, words):
+    text = (GSA / study).read_text()
+    assert edit[0] in text, edit
+    path = tmp_path / study
+    path.write_text(text.replace(edit[0], edit[1], 1))
+    line = refused(capsys, "gsa", "run", str(path), "--out", str(tmp_path / "o"))
+    for word in words:
+        assert word in line
+    assert not (tmp_path / "o").exists()
