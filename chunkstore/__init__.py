@@ -37,10 +37,13 @@ from chunkstore.compute import Chunk, compute
 from chunkstore.errors import LockedError, StoreError, StoreWarning
 from chunkstore.lock import FolderLock
 from chunkstore.pool import EXECUTORS, check_executor, die_with_parent, execute, process_pool
-from chunkstore.store import Store, differences
+from chunkstore.store import CHUNK_DIR, MANIFEST, SUMS, Store, differences
 
 __all__ = [
+    "CHUNK_DIR",
     "EXECUTORS",
+    "MANIFEST",
+    "SUMS",
     "Chunk",
     "FolderLock",
     "LockedError",

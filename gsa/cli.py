@@ -13,6 +13,7 @@ from pathlib import Path
 from sam.errors import UserError, output_folder
 from sam.options import integer
 
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
     from gsa.studies import MIN_BOOTSTRAP
 
@@ -58,8 +59,7 @@ def run_command(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from chunkstore import FolderLock
-    from chunkstore.store import MANIFEST, SUMS, CHUNK_DIR
+    from chunkstore import CHUNK_DIR, MANIFEST, SUMS, FolderLock
     from gsa import ESTIMATORS, resources, run, saltelli_design
     from gsa.report import report_files, write_report
     from gsa.sam_model import SamModel

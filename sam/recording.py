@@ -1,9 +1,10 @@
 """Recordings: one run of the valve-controlled cylinder, as CSV or MATLAB ``.mat``.
 
-The file format is the contract in ``docs/recordings.md``: SI units, exact column names, ``true_*`` columns for
-simulator ground truth. Files may come from any data logger, so the reader
-trusts nothing and refuses a bad file with one :class:`RecordingError` that
-names the file, the column and, where it applies, the row.
+The file format is the contract in ``docs/recordings.md``: SI units, exact
+column names, ``true_*`` columns for simulator ground truth. Files may come
+from any data logger, so the reader trusts nothing and refuses a bad file with
+one :class:`RecordingError` that names the file, the column and, where it
+applies, the row.
 
 Row numbers in messages are *data rows*, counted from 1 (the first sample is
 data row 1). For CSV files the message also gives the line number in the file,
