@@ -113,12 +113,13 @@ def conclusion(result: SobolResult, spec) -> list[str]:
     if not scalars:
         return []
     lines = ["## What the study shows", ""]
-    key: set[int] = set()
+    leads: dict[int, list[str]] = {}  # factor -> the outputs it leads
     negligible = set(range(len(result.factor_names)))
     for name, j in scalars.items():
         groups = result.ranked_groups(j, "ST")
         top = groups[0]
-        key.update(top)
+        for i in top:
+            leads.setdefault(i, []).append(name[: -len(STEADY)] if name.endswith(STEADY) else name)
         negligible &= {i for i in range(len(result.factor_names)) if result.ST_hi[i, j] < NEGLIGIBLE_ST}
         values = ", ".join(f"{result.ST[i, j]:.2f} [{result.ST_lo[i, j]:.2f}, {result.ST_hi[i, j]:.2f}]"
                            for i in top)
@@ -128,26 +129,29 @@ def conclusion(result: SobolResult, spec) -> list[str]:
                      f"{_join([_named(result, spec, i) for i in top])} (total index {values}{tied}). "
                      f"Full ranking: {ranking_words(result, j)}.")
     lines.append("")
-    key_names = [result.factor_names[i] for i in sorted(key)]
-    fixed = [result.factor_names[i] for i in sorted(negligible - key)]
+    key = sorted(leads)
+    fixed = [result.factor_names[i] for i in sorted(negligible - set(key))]
     inter = [float(result.interactions[j]) for j in scalars.values()]
-    advice = (f"**What to do with it.** To make the model match these outputs of a machine, know "
-              f"{_join(key_names)} best: measure them or calibrate them first, since an error in them "
-              f"moves the outputs most.")
+    watch = "; ".join(f"{result.factor_names[i]} in {_join(leads[i])}" for i in key)
+    advice = (f"**What to do with it.** {_join([result.factor_names[i] for i in key])} move these outputs the "
+              f"most. Where the model must match a machine, get them right first (measure or calibrate "
+              f"them); where they change in service (wear, a leak), a change shows first where each leads: "
+              f"{watch}.")
     if fixed:
         advice += (f" {_join(fixed)} can stay at {'its' if len(fixed) == 1 else 'their'} nominal "
                    f"value{'s' * (len(fixed) > 1)} for these outputs: over the studied ranges "
                    f"{'it moves' if len(fixed) == 1 else 'they move'} none of them measurably.")
-    advice += " " + _transient_note(result, spec, negligible - key)
+    advice += " " + _transient_note(result, spec, negligible - set(key))
     if max(inter) > MARKED_INTERACTION:
         advice += (f" Interactions carry up to {_pct(max(inter))} of the variance (1 − Σ S1): change "
                    f"parameters together when calibrating, not one at a time.")
     else:
         advice += (f" Interactions are small (1 − Σ S1 at most {max(inter):.2f}): each parameter acts "
                    f"mostly on its own, so they can be calibrated one by one.")
-    if result.N < 4096:
-        advice += (f" With N = {result.N} the intervals are wide; a larger --n separates more of "
-                   f"the ranking (their width shrinks as 1/√N).")
+    if any(sum(result.ST_hi[i, j] >= NEGLIGIBLE_ST for i in g) > 1
+           for j in scalars.values() for g in result.ranked_groups(j, "ST")):
+        advice += (f" Where parameters are tied, N = {result.N} cannot tell them apart: the intervals narrow "
+                   f"as 1/√N, so a run with --n {4 * result.N} halves them.")
     return lines + [advice.replace("  ", " ").strip(), ""]
 
 
