@@ -27,6 +27,7 @@ import json
 import os
 import re
 import warnings
+import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -180,8 +181,9 @@ class Store:
         tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
         try:
             with open(tmp, "wb") as f:
-                np.savez(f, **{str(k): np.asarray(v) for k, v in arrays.items()})
-            digest, _ = _sha256(tmp)
+                hashed = _HashingWriter(f)  # hashed as written: no second pass over a chunk of GBs
+                _write_npz(hashed, arrays)
+            digest = hashed.sha256.hexdigest()
             os.replace(tmp, path)
             with open(self.chunk_dir / SUMS, "a") as f:
                 f.write(f"{digest}  {path.name}\n")
@@ -263,6 +265,31 @@ def _jsonable(obj: dict, what: str) -> dict:
         return json.loads(json.dumps(obj, allow_nan=False))
     except (TypeError, ValueError) as e:
         raise StoreError(f"{what}: must be plain JSON (numbers, strings, lists, dicts): {e}") from None
+
+
+def _write_npz(stream, arrays: Mapping[str, np.ndarray]) -> None:
+    """What np.savez writes (a zip of .npy members, read back by np.load), to a stream that
+    cannot seek (np.savez insists on a file name or a readable file)."""
+    with zipfile.ZipFile(stream, mode="w", compression=zipfile.ZIP_STORED) as z:
+        for name, value in arrays.items():
+            with z.open(f"{name}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asarray(value), allow_pickle=False)
+
+
+class _HashingWriter:
+    """A write-only stream that hashes what passes through it. It has no seek or tell, so
+    zipfile (np.savez) writes it front to back and the hash is the file's."""
+
+    def __init__(self, f):
+        self._f = f
+        self.sha256 = hashlib.sha256()
+
+    def write(self, data) -> int:
+        self.sha256.update(data)
+        return self._f.write(data)
+
+    def flush(self) -> None:
+        self._f.flush()
 
 
 def _sha256(path: Path) -> tuple[str, int]:
