@@ -159,18 +159,17 @@ def spool_trajectory(plant: Plant, u: np.ndarray, dt_sim: float, n_sub: int) -> 
 
 def check_segment(seg_s: float, data: Prepared, validation: Prepared | None = None) -> None:
     """Refuse a segment length the diagnosis cannot use, instead of silently using another one:
-    it must be at least MIN_SEGMENT_S, and the recording must hold three segments (two to fit,
-    one to hold out) or, with a validation recording, the validation recording one."""
+    it must be at least MIN_SEGMENT_S, the recording must hold three segments (the segment
+    simulator shortens them otherwise) and a validation recording one."""
     if not (math.isfinite(seg_s) and seg_s >= MIN_SEGMENT_S):
         raise UserError(f"--segment {seg_s:g} s: a segment must be at least {MIN_SEGMENT_S:g} s (each starts "
                         f"with a 30 ms transient that is not scored)")
-    longest = data.duration / 3 if validation is None else min(data.duration, validation.duration)
+    limits = [(data.duration / 3, f"{data.name} ({data.duration:.1f} s) must hold three segments")]
+    if validation is not None:
+        limits.append((validation.duration, f"{validation.name} ({validation.duration:.1f} s) must hold one"))
+    longest, why = min(limits)
     if seg_s > longest:
-        raise UserError(f"--segment {seg_s:g} s: {data.name} ({data.duration:.1f} s) must hold three segments "
-                        f"(two to fit, one held out); use --segment {math.floor(100 * longest) / 100:g} or less"
-                        if validation is None else
-                        f"--segment {seg_s:g} s: longer than a recording ({data.duration:.1f} s and "
-                        f"{validation.duration:.1f} s); use --segment {math.floor(100 * longest) / 100:g} or less")
+        raise UserError(f"--segment {seg_s:g} s: {why}; use --segment {math.floor(100 * longest) / 100:g} or less")
 
 
 def sampling_note(data: Prepared, validation: Prepared) -> str | None:
