@@ -3,21 +3,25 @@
 Nurmi & Mattila (2011), Section 2: a servo valve, an asymmetric cylinder, a boom
 with loads, LuGre friction and leakage faults, advanced by forward Euler
 (Eq. (22); a chamber pressure semi-implicit where it is stiff, against a rail through an open
-edge). One step function, :func:`euler_step`, serves the batch simulator,
-the global sensitivity analysis and the Unscented Kalman Filter.
+edge) or, when asked, by sub-steps of a higher-order scheme. One step function, :func:`step`,
+serves the batch simulator, the global sensitivity analysis and the Unscented Kalman Filter.
 
 Public face:
 
 * parameters: :class:`Plant` and its groups, :func:`load_plant`, the flat
   vector layout :data:`P` / :data:`PARAM_NAMES`;
-* the model: :data:`S` (state layout), :func:`step_batch` (:func:`step_batch_inplace`), :func:`rhs`,
+* the model: :data:`S` (state layout), :func:`step` (:data:`SCHEMES`), :func:`step_batch`
+  (:func:`step_batch_inplace`), :func:`rhs`,
   :func:`stroke_ends` (the end stops);
 * simulation: :func:`simulate_batch`, :func:`initial_state`, :func:`run_scenario`;
 * recordings: :class:`Recording`, :func:`read_recording`, :func:`write_recording`.
 """
 
 from .constants import DT_DEFAULT, LEAK_REFERENCE_DP, LPM
-from .dynamics import D, N_STATES, S, derive, euler_step, rhs, step_batch, step_batch_inplace, stroke_ends
+from .dynamics import (
+    D, N_SCRATCH, N_STATES, SCHEMES, S, Scheme, derive, euler_step, rhs, step, step_batch, step_batch_inplace,
+    stroke_ends,
+)
 from .errors import UserError
 from .params import (
     P, PARAM_NAMES, Boom, Cylinder, Disturbances, Effects, Faults, Fluid, Friction, Plant,
@@ -29,7 +33,8 @@ from .scenario import Scenario, load_scenario, run_scenario
 from .simulate import BatchResult, initial_state, simulate_batch
 
 __all__ = [
-    "DT_DEFAULT", "LEAK_REFERENCE_DP", "LPM", "D", "N_STATES", "S", "derive", "euler_step",
+    "DT_DEFAULT", "LEAK_REFERENCE_DP", "LPM", "D", "N_SCRATCH", "N_STATES", "SCHEMES", "S", "Scheme", "derive",
+    "euler_step", "step",
     "rhs", "step_batch", "step_batch_inplace", "stroke_ends", "UserError", "P", "PARAM_NAMES", "Boom", "Cylinder", "Disturbances",
     "Effects", "Faults", "Fluid", "Friction", "Plant", "Supply", "Valve", "default_plant_path",
     "load_plant", "Recording", "RecordingError", "read_recording", "write_recording",

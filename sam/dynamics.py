@@ -1,9 +1,10 @@
-"""The model's state, right-hand side (Eq. (19)) and Euler step (Eq. (22); semi-implicit where a
-chamber pressure is stiff, :func:`euler_step`).
+"""The model's state, right-hand side (Eq. (19)) and its one step, :func:`step`: Eq. (22)'s forward
+Euler by default (semi-implicit where a chamber pressure is stiff, :func:`euler_step`), or
+sub-steps of a higher-order scheme (:class:`Scheme`).
 
 This module is the one place where the physics is assembled. The batch
 simulator, the global sensitivity analysis and the Unscented Kalman Filter all
-advance the model through :func:`euler_step`; nothing else writes an equation.
+advance the model through :func:`step`; nothing else writes an equation.
 
 State vector, Eq. (18), indexed by :data:`S`::
 
@@ -285,18 +286,36 @@ def euler_step(s, u, p, d, dt, ds):
     Returns the flag word (0 when nothing was clamped but the end stops).
     """
     c_A, c_B, G_A, G_B, G_AB = rates(s, u, p, d, ds)
+    return _advance(s, d, dt, ds, c_A, c_B, G_A, G_B, G_AB)
+
+
+@jit_inline
+def _stiff_shares(dt, c_A, c_B, G_A, G_B, G_AB):
+    """The stiff share [m^3/(s Pa)] of each path of :func:`rates` at a step of dt [s]: to the rails
+    of A and B, and between the chambers (:func:`_stiff_share`); all 0 where no path is stiff."""
+    h_A, h_B = dt * c_A, dt * c_B
+    return (_stiff_share(h_A * G_A) * G_A, _stiff_share(h_B * G_B) * G_B,
+            _stiff_share((h_A + h_B) * G_AB) * G_AB)
+
+
+@jit_inline
+def _advance(s, d, dt, ds, c_A, c_B, G_A, G_B, G_AB):
+    """The update of :func:`euler_step` from the rates ``ds`` (7,) that :func:`rates` wrote at
+    ``s`` (and the capacitances and conductances it returned): ``s += dt ds``, the pressures
+    semi-implicit where a path is stiff, the end stops and the cavitation floor applied.
+
+    ``ds[4]`` is the velocity the piston moves at over the step (``s[5]`` for forward Euler; the
+    new velocity for the semi-implicit scheme of :func:`step`): the displacement flows of
+    Eqs. (8)-(9), which :func:`rates` wrote with ``s[5]``, are corrected to the travel it makes."""
     # a step that reaches an end stop displaces oil only over the travel to it
-    v_disp = stop_travel_velocity(s[4], s[5], dt, d[D.x_end])
+    v_disp = stop_travel_velocity(s[4], ds[4], dt, d[D.x_end])
     if v_disp != s[5]:
         ds[0] += c_A * d[D.A_A] * (s[5] - v_disp)
         ds[1] -= c_B * d[D.A_B] * (s[5] - v_disp)
-    h_A, h_B = dt * c_A, dt * c_B
     # the stiff share of each path (0 where forward Euler cannot overshoot: the common case)
-    a = _stiff_share(h_A * G_A) * G_A
-    b = _stiff_share(h_B * G_B) * G_B
-    g = _stiff_share((h_A + h_B) * G_AB) * G_AB
+    a, b, g = _stiff_shares(dt, c_A, c_B, G_A, G_B, G_AB)
     if a > 0.0 or b > 0.0 or g > 0.0:
-        ds[0], ds[1] = stiff_pressure_rates(ds[0], ds[1], h_A, h_B, a, b, g)
+        ds[0], ds[1] = stiff_pressure_rates(ds[0], ds[1], dt * c_A, dt * c_B, a, b, g)
     for j in range(N_STATES):
         s[j] += dt * ds[j]
     flags = 0
@@ -317,25 +336,115 @@ def euler_step(s, u, p, d, dt, ds):
     return flags
 
 
+class Scheme(IntEnum):
+    """The integration scheme of each sub-step of :func:`step`."""
+
+    EULER = 0  #: Eq. (22): forward Euler, the pressures semi-implicit where stiff
+    SEMI_IMPLICIT = 1  #: symplectic Euler: v, then x and the displacement flows; dx_s/dt, then x_s
+    HEUN = 2  #: explicit trapezoidal rule (2nd order)
+    RK4 = 3  #: classical Runge-Kutta (4th order)
+
+
+#: Scheme names as a scenario or a caller gives them.
+SCHEMES = {"euler": Scheme.EULER, "semi_implicit": Scheme.SEMI_IMPLICIT, "heun": Scheme.HEUN, "rk4": Scheme.RK4}
+#: Length of the scratch array :func:`step` needs: rates, the start state and the stage rates.
+N_SCRATCH = 6 * N_STATES
+
+
+@jit_inline
+def step(s, u, p, d, dt, ds, substeps=1, scheme=0):
+    """The model's one step: advance ``s`` (7,) in place over ``dt`` [s] under the held input
+    ``u`` [V] in ``substeps`` sub-steps of the :class:`Scheme` ``scheme``. The defaults are
+    Eq. (22) at ``dt``: exactly :func:`euler_step`, bit for bit.
+
+    ``ds`` is scratch space: (7,) for forward Euler, (:data:`N_SCRATCH`,) for the others (numba
+    does not check bounds: a shorter one is the caller's error).
+    Every sub-step keeps the end stops, the cavitation floor and the stiff chambers of
+    :func:`euler_step`: the Runge-Kutta schemes take a forward-Euler sub-step instead where a
+    path is stiff at the sub-step, where the sub-step reaches an end stop, or where their result
+    would leave the stroke or fall below the cavitation floor (the rails and the stops are where
+    the solution is not smooth and a higher order buys nothing). Returns the OR of the flags.
+    """
+    h = dt / substeps
+    flags = 0
+    for _ in range(substeps):
+        if scheme == Scheme.EULER:
+            flags |= euler_step(s, u, p, d, h, ds)
+        elif scheme == Scheme.SEMI_IMPLICIT:
+            flags |= _semi_implicit_step(s, u, p, d, h, ds)
+        else:
+            flags |= _runge_kutta_step(s, u, p, d, h, ds, scheme == Scheme.RK4)
+    return flags
+
+
+@jit_inline
+def _semi_implicit_step(s, u, p, d, h, ds):
+    """Symplectic Euler on the model's two oscillators: the piston's velocity is advanced first
+    and the position, and the displacement flows of Eqs. (8)-(9), move with the new one (the
+    hydraulic spring and the load); the spool's velocity first, then its position (Eq. (15)).
+    Pressures, friction and the stiff chambers as in :func:`euler_step`. First order, like
+    forward Euler, but without its growth of the undamped modes' energy (|1 + i h omega| > 1)."""
+    c_A, c_B, G_A, G_B, G_AB = rates(s, u, p, d, ds)
+    ds[4] = s[5] + h * ds[5]
+    ds[2] = s[3] + h * ds[3]
+    return _advance(s, d, h, ds, c_A, c_B, G_A, G_B, G_AB)
+
+
+@jit_inline
+def _runge_kutta_step(s, u, p, d, h, w, fourth):
+    """One sub-step of h [s] of RK4 (``fourth``) or Heun's method, in place on ``s`` (7,), with
+    ``w`` (N_SCRATCH,) as scratch: w[0:7] the first stage's rates, w[7:14] the start state,
+    w[14:21] the stage state, w[21:42] the later stages' rates. Falls back to
+    :func:`euler_step`'s update from the first stage (see :func:`step`)."""
+    n = N_STATES
+    c_A, c_B, G_A, G_B, G_AB = rates(s, u, p, d, w)
+    a, b, g = _stiff_shares(h, c_A, c_B, G_A, G_B, G_AB)
+    if a > 0.0 or b > 0.0 or g > 0.0 or stop_travel_velocity(s[4], s[5], h, d[D.x_end]) != s[5]:
+        return _advance(s, d, h, w, c_A, c_B, G_A, G_B, G_AB)
+    for j in range(n):
+        w[n + j] = s[j]  # the start state
+    k = w[3 * n:]  # k[0:n], k[n:2n], k[2n:3n]: the rates of stages 2, 3, 4
+    if fourth:
+        for stage, frac in ((0, 0.5), (1, 0.5), (2, 1.0)):
+            prev = w[0:n] if stage == 0 else k[(stage - 1) * n:stage * n]
+            for j in range(n):
+                w[2 * n + j] = w[n + j] + frac * h * prev[j]
+            rates(w[2 * n:3 * n], u, p, d, k[stage * n:(stage + 1) * n])
+        for j in range(n):
+            s[j] = w[n + j] + h / 6.0 * (w[j] + 2.0 * k[j] + 2.0 * k[n + j] + k[2 * n + j])
+    else:
+        for j in range(n):
+            w[2 * n + j] = w[n + j] + h * w[j]
+        rates(w[2 * n:3 * n], u, p, d, k[0:n])
+        for j in range(n):
+            s[j] = w[n + j] + 0.5 * h * (w[j] + k[j])
+    if s[0] < P_CAVITATION or s[1] < P_CAVITATION or s[4] < 0.0 or s[4] > d[D.x_end]:
+        for j in range(n):  # back to the start: the forward-Euler update from the first stage
+            s[j] = w[n + j]
+        return _advance(s, d, h, w, c_A, c_B, G_A, G_B, G_AB)
+    return 0
+
+
 @jit
-def step_batch(states, u, params, dt):
-    """Advance a batch of states one Euler step: the filter's process model.
+def step_batch(states, u, params, dt, substeps=1, scheme=0):
+    """Advance a batch of states one model step (:func:`step`): the filter's process model.
 
     states (n, 7), u (n,) [V], params (n, len(P)) -> new states (n, 7), flags (n,).
-    The input arrays are not modified.
+    ``substeps`` and ``scheme`` (a :class:`Scheme`) as in :func:`step`; the defaults are
+    Eq. (22) at ``dt``. The input arrays are not modified.
     """
     out = states.copy()
     flags = np.zeros(states.shape[0], dtype=np.int64)
-    step_batch_inplace(out, u, params, dt, flags)
+    step_batch_inplace(out, u, params, dt, flags, substeps, scheme)
     return out, flags
 
 
 @jit
-def step_batch_inplace(states, u, params, dt, flags):
+def step_batch_inplace(states, u, params, dt, flags, substeps=1, scheme=0):
     """:func:`step_batch` in place: states (n, 7) C-contiguous, advanced; flags (n,) written.
     For the filter, which steps a few dozen sigma points per sample and reuses one array."""
     params = np.ascontiguousarray(params)  # the array itself when it is C-contiguous
-    ds_owner, d_owner = np.empty(N_STATES), np.empty(N_DERIVED)
+    ds_owner, d_owner = np.empty(N_SCRATCH), np.empty(N_DERIVED)
     # borrowed views (sam.views): no reference counting per row, half the time of a step
     ds, d = views.whole(ds_owner), views.whole(d_owner)
     for i in range(states.shape[0]):
@@ -347,7 +456,7 @@ def step_batch_inplace(states, u, params, dt, flags):
             derive_geometry(p, d)
         if i == 0 or not _same(params, i, MACHINE_COLS):
             derive_machine(p, d)
-        flags[i] = euler_step(views.row(states, i), u[i], p, d, dt, ds)
+        flags[i] = step(views.row(states, i), u[i], p, d, dt, ds, substeps, scheme)
 
 
 @jit_inline

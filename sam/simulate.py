@@ -1,6 +1,6 @@
 """The batch simulator: many parameter sets, one compiled loop over time.
 
-Each run is advanced by :func:`sam.dynamics.euler_step` (Eq. (22)); runs are
+Each run is advanced by :func:`sam.dynamics.step` (Eq. (22) by default); runs are
 spread over the CPU cores with numba's ``prange``. Only the instants asked for
 are kept, so a batch of 90,000 runs of 4 s at 1 ms fits in memory.
 
@@ -15,14 +15,17 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .dynamics import DERIVE_INPUTS, FLAG_CAVITATION, N_DERIVED, N_STATES, S, areas, derive, euler_step
+from .dynamics import (
+    DERIVE_INPUTS, FLAG_CAVITATION, N_DERIVED, N_SCRATCH, N_STATES, SCHEMES, S, areas, derive, step,
+)
 from .geometry import external_force
 from .params import P
 
 
 # nogil: a caller's other threads (e.g. the GSA runner writing finished chunks) run meanwhile
 @numba.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
-def _simulate_kernel(x0, params, u, tv_cols, tv_vals, rederive, dt, n_steps, record_at, channels, out, flags):
+def _simulate_kernel(x0, params, u, tv_cols, tv_vals, rederive, dt, n_steps, record_at, channels, out, flags,
+                     substeps, scheme):
     """x0 (n,7); params (n,np); u (1|n, n_steps); tv_vals (1|n, m, n_steps);
     record_at (n_rec,) sorted step indices in [0, n_steps]; out (n, n_chan, n_rec)."""
     n = x0.shape[0]
@@ -30,7 +33,7 @@ def _simulate_kernel(x0, params, u, tv_cols, tv_vals, rederive, dt, n_steps, rec
     for i in numba.prange(n):
         s = x0[i].copy()
         p = params[i].copy()
-        ds = np.empty(N_STATES)
+        ds = np.empty(N_SCRATCH)
         d = np.empty(N_DERIVED)
         derive(p, d)
         # a shared (1, n_steps) input serves every run; int64 keeps numba from promoting to float
@@ -48,7 +51,7 @@ def _simulate_kernel(x0, params, u, tv_cols, tv_vals, rederive, dt, n_steps, rec
                 p[tv_cols[j]] = tv_vals[itv, j, k]
             if rederive:
                 derive(p, d)
-            flags[i] |= euler_step(s, u[iu, k], p, d, dt, ds)
+            flags[i] |= step(s, u[iu, k], p, d, dt, ds, substeps, scheme)
 
 
 @dataclass(frozen=True)
@@ -80,13 +83,15 @@ def simulate_batch(
     record_every: int = 1,
     record_at: np.ndarray | None = None,
     channels: tuple[str, ...] = tuple(S.__members__),
+    substeps: int = 1,
+    scheme: str = "euler",
 ) -> BatchResult:
     """Simulate a batch of runs from their parameter vectors.
 
     Args:
         params: (n_runs, len(P)) parameter vectors (see :meth:`sam.params.Plant.vector`).
         u: control signal [V], (n_steps,) shared by all runs or (n_runs, n_steps).
-        dt: Euler step [s].
+        dt: the model's step [s]: the input and the time-varying parameters are held over it.
         x0: initial states (n_runs, 7) or (7,); default :func:`initial_state` of each run.
         time_varying: parameter name -> values per step, (n_steps,) shared or
             (n_runs, n_steps); overrides that column of ``params`` at each step
@@ -94,7 +99,14 @@ def simulate_batch(
         record_every: keep every k-th instant, including t = 0 and the end.
         record_at: explicit step indices in [0, n_steps] to keep instead.
         channels: names of the states to keep (fewer channels, less memory).
+        substeps: sub-steps of ``dt / substeps`` per step (:func:`sam.dynamics.step`).
+        scheme: ``"euler"`` (Eq. (22)), ``"semi_implicit"``, ``"heun"`` or ``"rk4"``
+            (:class:`sam.dynamics.Scheme`). The defaults are Eq. (22) at ``dt``.
     """
+    if scheme not in SCHEMES:
+        raise ValueError(f"scheme must be one of {sorted(SCHEMES)}, got {scheme!r}")
+    if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
+        raise ValueError(f"substeps must be a whole number >= 1, got {substeps!r}")
     params = np.ascontiguousarray(np.atleast_2d(params), dtype=np.float64)
     n_runs = params.shape[0]
     u2 = np.ascontiguousarray(np.atleast_2d(u), dtype=np.float64)
@@ -110,7 +122,8 @@ def simulate_batch(
     out = np.empty((n_runs, len(chan_idx), len(record_at)))
     flags = np.zeros(n_runs, dtype=np.int64)
     rederive = bool(DERIVE_INPUTS.intersection(time_varying or {}))
-    _simulate_kernel(x0, params, u2, tv_cols, tv_vals, rederive, float(dt), n_steps, record_at, chan_idx, out, flags)
+    _simulate_kernel(x0, params, u2, tv_cols, tv_vals, rederive, float(dt), n_steps, record_at, chan_idx, out, flags,
+                     int(substeps), int(SCHEMES[scheme]))
     states = {c: out[:, j, :] for j, c in enumerate(channels)}
     return BatchResult(record_at * dt, states, (flags & FLAG_CAVITATION) != 0)
 
