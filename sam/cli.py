@@ -25,13 +25,25 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def simulate_command(args: argparse.Namespace) -> int:
+    out = check_outputs(args)
+    scenario = load_scenario(args.scenario)
+    write_outputs(args, out, scenario, run_scenario(scenario))
+    return 0
+
+
+def check_outputs(args: argparse.Namespace) -> Path:
+    """The recording's path, its and the figure's checked before the work is done (suffix, no
+    overwrite without --force, not the scenario file itself)."""
     out = output_file(args.out, args.force, suffixes=(".csv", ".mat"))
     if out.resolve() == args.scenario.resolve():
         raise UserError(f"{out}: --out would overwrite the scenario file")
     if args.plot is not None:  # checked before the work, not after the recording is written
         output_file(args.plot, args.force, suffixes=figure_suffixes(), option="--plot")
-    scenario = load_scenario(args.scenario)
-    rec = run_scenario(scenario)
+    return out
+
+
+def write_outputs(args: argparse.Namespace, out: Path, scenario, rec) -> None:
+    """Write the recording (and the figure) a simulate command asked for, and say what was written."""
     write_recording(out, rec, overwrite=args.force)
     print(f"wrote {out} ({rec.n} samples, {rec.t[-1]:.3g} s)")
     if "warning" in rec.metadata:
@@ -41,4 +53,3 @@ def simulate_command(args: argparse.Namespace) -> int:
 
         plot_recordings({scenario.name: rec}, args.plot, scenario.description)
         print(f"wrote {args.plot}")
-    return 0

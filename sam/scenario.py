@@ -32,6 +32,13 @@ ground truth in ``true_*`` columns. See ``scenarios/paper_step.toml``::
     x_m = 0.0
     [plant_overrides.effects]      # optional: any plant table, on top of the plant file
     air_fraction = 0.01
+    [numerics]                     # optional: the model's step (sam.dynamics.step)
+    substeps = 1                   # sub-steps of dt_s / substeps per step
+    scheme = "euler"               # "euler" (Eq. (22)), "semi_implicit", "heun", "rk4"
+
+A ``[control]`` table (sam.control) instead of ``[input]`` asks for closed-loop position
+control, which the rig simulator runs (``samfdi simulate --engine rig``); ``[rig]`` tables are
+read by the rig simulator only.
 """
 
 from __future__ import annotations
@@ -45,6 +52,8 @@ from typing import Any
 import numpy as np
 
 from .constants import DT_DEFAULT
+from .control import Control, parse_control
+from .dynamics import SCHEMES
 from .errors import UserError, did_you_mean, where
 from .hydraulics import flow_coefficient, leak_coefficient, leak_lpm
 from .measurement import Sensors, measure
@@ -62,7 +71,7 @@ OFFSET_UNITS = {"1": 1.0, "%": 0.01}  # of the spool's full travel
 #: a spool offset above this share of the travel is warned about: twice the paper's largest (Table 1, +-5 %)
 OFFSET_WARN = 0.10
 _TOP_KEYS = {"description", "plant", "duration_s", "dt_s", "output_dt_s", "seed", "input", "load",
-             "faults", "sensors", "initial", "plant_overrides", "name"}
+             "faults", "sensors", "initial", "plant_overrides", "name", "control", "numerics", "rig"}
 #: Ground-truth columns: recording name -> model parameter or state.
 _TRUE_PARAMS = {"true_K_int": "K_int", "true_K_extA": "K_extA", "true_K_extB": "K_extB",
                 "true_offset": "offset", "true_mL": "m_L"}
@@ -90,6 +99,9 @@ class Scenario:
     x0_m: float = 0.0
     source: Path | None = None
     metadata: dict[str, str] = field(default_factory=dict)
+    control: Control | None = None  #: closed-loop position control (then u is NaN: the loop makes it)
+    substeps: int = 1  #: the model's sub-steps per dt (sam.dynamics.step)
+    scheme: str = "euler"  #: the model's scheme, a key of sam.dynamics.SCHEMES
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -124,7 +136,10 @@ def scenario_from_table(table: dict[str, Any], source: Path) -> Scenario:
     seed = table.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise UserError(f"{where(source, 'seed')}: expected a non-negative integer, got {seed!r}")
-    u = _input(table, t, source, base, seed)
+    control = parse_control(table, t, source, plant.cylinder.x_max)
+    if control is not None and "input" in table:
+        raise UserError(f"{where(source, 'input')}: give [input] (open loop) or [control] (closed loop), not both")
+    u = np.full_like(t, np.nan) if control is not None else _input(table, t, source, base, seed)
     time_varying = {**_faults(table, t, source, plant), **load_mass_profile(table, t, source)}
     check_step(plant.vector(), time_varying, u, dt, source, "dt_s")
     return Scenario(
@@ -132,7 +147,7 @@ def scenario_from_table(table: dict[str, Any], source: Path) -> Scenario:
         description=str(table.get("description", "")),
         plant=plant, dt=dt, output_every=output_every, t=t, u=u, time_varying=time_varying,
         sensors=_sensors(table, source), seed=seed, x0_m=_initial(table, source, plant),
-        source=source,
+        source=source, control=control, **_numerics(table, source),
     )
 
 
@@ -273,6 +288,19 @@ def _sensors(table, source) -> Sensors:
     return Sensors(**spec)
 
 
+def _numerics(table, source) -> dict:
+    spec = _table(table, "numerics", source)
+    for key in spec:
+        if key not in ("substeps", "scheme"):
+            raise UserError(f"{where(source, f'numerics.{key}')}: unknown key; allowed: ['scheme', 'substeps']")
+    substeps, scheme = spec.get("substeps", 1), spec.get("scheme", "euler")
+    if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
+        raise UserError(f"{where(source, 'numerics.substeps')}: expected a whole number >= 1, got {substeps!r}")
+    if scheme not in SCHEMES:
+        raise UserError(f"{where(source, 'numerics.scheme')}: expected one of {sorted(SCHEMES)}, got {scheme!r}")
+    return {"substeps": substeps, "scheme": scheme}
+
+
 def _initial(table, source, plant) -> float:
     spec = _table(table, "initial", source)
     for key in spec:
@@ -286,10 +314,13 @@ def _initial(table, source, plant) -> float:
 
 def run_scenario(sc: Scenario) -> Recording:
     """Simulate a scenario and measure it: a recording with ``true_*`` ground truth."""
+    if sc.control is not None:
+        raise UserError(f"{where(sc.source, 'control')}: closed-loop control runs on the rig simulator "
+                        f"(samfdi simulate ... --engine rig); sam's simulator takes an open-loop [input]")
     params = sc.plant.vector()
     result = simulate_batch(
         params, sc.u, sc.dt, x0=initial_state(params, sc.x0_m), time_varying=sc.time_varying,
-        record_every=sc.output_every,
+        record_every=sc.output_every, substeps=sc.substeps, scheme=sc.scheme,
     )
     keep = np.arange(0, len(sc.t) + 1, sc.output_every)
     states = {name: values[0] for name, values in result.states.items()}
@@ -306,7 +337,7 @@ def run_scenario(sc: Scenario) -> Recording:
              for col, name in _TRUE_PARAMS.items()}
     truth.update({col: states[name] for col, name in _TRUE_STATES.items()})
     metadata = {"plant": sc.plant.name, "scenario": sc.name, "generator": "samfdi simulate",
-                "seed": str(sc.seed)}
+                "seed": str(sc.seed), "model_step": f"{sc.scheme}, {sc.substeps} x {sc.dt / sc.substeps:g} s"}
     if sc.description:
         metadata["description"] = sc.description
     if result.cavitated[0]:
