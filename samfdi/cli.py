@@ -16,7 +16,7 @@ import warnings
 from sam.errors import UserError
 
 #: Modules that contribute commands, in the order their commands are listed.
-COMMAND_MODULES = ("sam.cli", "gsa.cli", "fdi.cli", "discrepancy.cli", "samfdi.demo")
+COMMAND_MODULES = ("sam.cli", "rig.cli", "gsa.cli", "fdi.cli", "discrepancy.cli", "samfdi.demo")
 
 EXIT_USER_ERROR = 2
 
