@@ -121,6 +121,7 @@ class C(IntEnum):
     spool_stuck = 66  #: 1.0 while the spool sticks (set by the integrator)
     reduced_mass_motion = 67  #: 1.0: the boom moves as Eq. (19) says, without Eq. (7)'s R-dot term
     leak_taper = 68  #: 1, the outer fraction of the null-leakage band over which it fades
+    spool_sliding = 69  #: 1, a sticking spool's sliding friction as a share of its breakaway
 
 
 N_CONSTANTS = len(C)

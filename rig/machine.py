@@ -82,6 +82,7 @@ def build(plant: Plant, settings: RigSettings, rng: np.random.Generator, source=
     c[C.leak_taper] = e.leak_band_taper
     c[C.notch_knee], c[C.notch_exponent] = e.notch_knee, e.notch_exponent
     c[C.stiction], c[C.dp_laminar], c[C.offset] = e.spool_stiction, e.orifice_transition_Pa, v.offset
+    c[C.spool_sliding] = e.spool_sliding_share
     c[C.bypass] = e.bypass_m3_s_Pa
     c[C.p_S], c[C.p_T] = s.p_S, s.p_T
     c[C.pump], c[C.V_line] = e.pump_flow_m3_s, e.line_volume_m3

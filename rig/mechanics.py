@@ -103,14 +103,15 @@ def stop_force(x, v, c):
 @jit
 def spool_acceleration(x_s, w_s, u, c):
     """Eq. (15) with the dimensionally consistent K omega_n^2 u (docs/model.md) [1/s^2], and a
-    sticking spool: held while the integrator says it sticks; against a Coulomb friction equal to
-    its breakaway (``stiction``, as a spool-position error) while it slides."""
+    sticking spool: held while the integrator says it sticks (it breaks free at a pull of
+    omega_n^2 ``stiction``); while it slides, against a Coulomb friction of ``spool_sliding`` of
+    that (below 1: it jumps when it breaks free, the stick-slip of a sticking spool)."""
     if c[C.spool_stuck] != 0.0:
         return 0.0
     w = c[C.omega_n]
     a = w * w * (c[C.K_u] * u - x_s) - 2.0 * w * c[C.zeta] * w_s
     if c[C.stiction] > 0.0 and w_s != 0.0:
-        a -= math.copysign(w * w * c[C.stiction], w_s)
+        a -= math.copysign(w * w * c[C.stiction] * c[C.spool_sliding], w_s)
     return a
 
 

@@ -84,6 +84,7 @@ class Effects:
     notch_exponent: float = knob(2.0, 1.0, 4.0)  #: 1
     hysteresis_V: float = knob(0.0, 0.0, 2.0)  #: V, width of the play between command and spool
     spool_stiction: float = knob(0.0, 0.0, 0.2)  #: 1, spool-position error that breaks a resting spool free
+    spool_sliding_share: float = knob(0.5, 0.0, 1.0)  #: 1, its sliding friction over its breakaway
     # pump-limited supply: a fixed pump, a relief valve and the line volume between them and the valve
     pump_flow_m3_s: float = knob(math.inf, 0.0, open_lo=True)  #: m^3/s; inf: an ideal source at p_S
     relief_override_Pa: float = knob(0.5e6, 0.0, open_lo=True)  #: Pa, from cracking to full pump flow
