@@ -18,7 +18,7 @@ import numpy as np
 
 from .layout import N_STATE, C, R
 from .mechanics import piston_position, spool_pull
-from .model import CHANNELS, derivatives, observe
+from .model import derivatives, observe
 from .sensors import ENC_L1, ENC_L2, ENC_L3, encoder_reading
 
 jit = numba.njit(cache=True, error_model="numpy")
