@@ -18,7 +18,7 @@ import rig
 import sam
 from discrepancy.simulation import fit_percent
 from rig.layout import C
-from rig.mechanics import torque_arm, torque_arm_slope
+from rig.mechanics import gravity_torque, torque_arm, torque_arm_slope
 from sam.constants import LPM
 
 #: sam's setting for the comparison: RK4 at 0.05 ms (the issue: sub-stepped to <= 0.05 ms)
@@ -97,3 +97,24 @@ def test_rig_and_sam_agree_over_the_parameter_box(B_eff, Q_N, dp_N, m_L, u):
     s = _sam(sc)
     for k in ("p_A", "p_B", "x"):
         assert fit_percent(r.truth[k], s[k]) > 99.5, k
+
+
+def test_the_boom_follows_contract_c1():
+    """Contract C1: the rig reads theta_level and cog_angle from the plant's boom once it has them,
+    and today's reconstruction (pi/2 - alpha, -pi/2) before; with those, the rig's gravity torque
+    over its lever is sam's load force (Eq. (21)) at every position, written apart."""
+    from types import SimpleNamespace
+
+    from rig.machine import boom_conventions
+    from sam.geometry import external_force
+
+    assert boom_conventions(SimpleNamespace(boom=SimpleNamespace(theta_level=0.415, cog_angle=0.3))) == (0.415, 0.3)
+    plant = sam.load_plant()
+    assert boom_conventions(plant) == (np.pi / 2 - plant.boom.alpha, -np.pi / 2)
+    c = rig.build(plant, rig_settings(), np.random.default_rng(0))
+    b = plant.boom
+    for x in np.linspace(0.0, 0.43, 12):
+        theta = np.arccos((b.L_1**2 + b.L_2**2 - (x + b.L_3) ** 2) / (2 * b.L_1 * b.L_2))
+        rig_force = gravity_torque(theta, c, b.m_L) / torque_arm(theta, b.L_1, b.L_2, b.L_3)
+        sam_force = external_force(x, b.L_1, b.L_2, b.L_3, b.alpha, b.m_B, b.r_B, b.m_L, b.m_R, b.L)
+        assert rig_force == pytest.approx(sam_force, rel=1e-9)
