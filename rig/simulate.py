@@ -15,9 +15,10 @@ from sam.errors import UserError, where
 from sam.recording import Recording
 from sam.scenario import Scenario
 
-from .integrate import CTRL_CLOSED, CTRL_DITHER_HZ, CTRL_DITHER_V, CTRL_EVERY, CTRL_HYSTERESIS, CTRL_KI, CTRL_KP, \
-    CTRL_LIMIT, N_CTRL, run
-from .layout import TIME_VARYING
+from .integrate import (
+    CTRL_CLOSED, CTRL_DITHER_HZ, CTRL_DITHER_V, CTRL_EVERY, CTRL_HYSTERESIS, CTRL_KI, CTRL_KP, CTRL_LIMIT, N_CTRL, run,
+)
+from .layout import P_VAPOUR, TIME_VARYING
 from .machine import build
 from .mechanics import joint_angle, piston_position
 from .model import CHANNELS, initial_state
@@ -122,7 +123,7 @@ def record(sc: Scenario, settings: RigSettings) -> Recording:
                 f"closed loop, P{'I' if sc.control.ki_V_per_m_s else ''} at {sc.control.rate_Hz:g} Hz"}
     if sc.description:
         metadata["description"] = sc.description
-    if np.any(tr["p_A"] <= -9e4) or np.any(tr["p_B"] <= -9e4):
+    if min(tr["p_A"].min(), tr["p_B"].min()) <= P_VAPOUR:
         metadata["warning"] = "a chamber pressure reached the vapour pressure (cavitation)"
     return Recording(t=res.t, signals=signals, truth=truth, metadata=metadata)
 
