@@ -35,7 +35,7 @@ def simulate_command(args: argparse.Namespace) -> int:
         if "rig" in read_toml(args.scenario):
             warnings.warn(f"{args.scenario}: the [rig.*] tables are read by --engine rig only; ignored")
         return simulate_on_sam(args)
-    check_outputs(args)
+    out = check_outputs(args)
     scenario, settings = load_rig_scenario(args.scenario)
-    write_outputs(args, scenario, record(scenario, settings))
+    write_outputs(args, out, scenario, record(scenario, settings))
     return 0

@@ -141,13 +141,17 @@ def scenario_from_table(table: dict[str, Any], source: Path) -> Scenario:
         raise UserError(f"{where(source, 'input')}: give [input] (open loop) or [control] (closed loop), not both")
     u = np.full_like(t, np.nan) if control is not None else _input(table, t, source, base, seed)
     time_varying = {**_faults(table, t, source, plant), **load_mass_profile(table, t, source)}
-    check_step(plant.vector(), time_varying, u, dt, source, "dt_s")
+    numerics = _numerics(table, source)
+    # a closed loop's u is the controller's, somewhere within its limits; each sub-step is an Euler step or more stable
+    u_range = u if control is None else np.array([-control.u_limit_V, control.u_limit_V])
+    check_step(plant.vector(), time_varying, u_range, dt / numerics["substeps"], source,
+               "dt_s" if numerics["substeps"] == 1 else "numerics.substeps")
     return Scenario(
         name=str(table.get("name", source.stem)),
         description=str(table.get("description", "")),
         plant=plant, dt=dt, output_every=output_every, t=t, u=u, time_varying=time_varying,
         sensors=_sensors(table, source), seed=seed, x0_m=_initial(table, source, plant),
-        source=source, control=control, **_numerics(table, source),
+        source=source, control=control, **numerics,
     )
 
 
