@@ -411,7 +411,8 @@ def _draw_sigma_points(Pm, P0, z, c, jitter, L, A, sig, counts, act, na):
     if tries < 0:
         Pm[:, :] = P0
         counts[2] += 1
-        _robust_sqrt(Pm, c, jitter, L, A, act, na)
+        if _robust_sqrt(Pm, c, jitter, L, A, act, na) < 0:  # run_filter checks P0: never, but never garbage
+            L[:, :] = 0.0
     elif tries > 0:
         counts[1] += 1
     # filterpy: sigmas[k+1] = x + U[k], U = cholesky upper = L^T -> U[k] = L[:, k]
@@ -1115,6 +1116,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
     P0 = np.broadcast_to(P0, (B, n, n))
     if held.any() and np.any((P0 != 0.0) & held[:, :, None] & ~held[:, None, :]):
         raise ValueError("run_filter: a held state has prior covariance with a free one (P0)")
+    _check_p0(P0, act, n_act, lam, cfg.jitter)
     q_gate, gate_group = _random_walk_gates(inp, cfg, n)
     stop_gate, stop_learn = _stop_gain_gate(inp, cfg, n)
     _run(np.ascontiguousarray(z0[order], dtype=float), np.ascontiguousarray(P0[order], dtype=float), Qd, Rd,
@@ -1136,6 +1138,42 @@ def run_filter(inp: FilterInput, cfg: FilterConfig = FilterConfig(), z0: np.ndar
         n_nan=counts[:, 0], n_jitter=counts[:, 1], n_cov_reset=counts[:, 2], n_state_reset=counts[:, 3],
         config=cfg, u=inp.u, ll=out_ll, inp=inp,
     )
+
+
+def _check_p0(P0: np.ndarray, act: np.ndarray, n_act: np.ndarray, lam: np.ndarray, jitter: float) -> None:
+    """Refuse (ValueError, one line) an initial covariance P0 (B, n, n) that is not finite,
+    not symmetric, not positive semi-definite, or that the filter cannot factorise over the
+    free states act[b, :n_act[b]] even with its growing diagonal jitter (all zeros)."""
+    if not np.all(np.isfinite(P0)):
+        b, i, j = np.argwhere(~np.isfinite(P0))[0]
+        raise ValueError(f"run_filter: P0[{b}, {i}, {j}] = {P0[b, i, j]}: the initial covariance must be finite")
+    asym = np.abs(P0 - np.swapaxes(P0, 1, 2))
+    size = np.maximum(np.abs(P0).max(axis=(1, 2)), 1e-300)
+    if np.any(asym.max(axis=(1, 2)) > 1e-9 * size):
+        b, i, j = np.unravel_index(np.argmax(asym / size[:, None, None]), asym.shape)
+        raise ValueError(f"run_filter: P0 is not symmetric: P0[{b}, {i}, {j}] = {P0[b, i, j]:.6g} but "
+                         f"P0[{b}, {j}, {i}] = {P0[b, j, i]:.6g}")
+    low = np.linalg.eigvalsh(P0)[:, 0]
+    if np.any(low < -1e-9 * size):
+        b = int(np.argmin(low / size))
+        raise ValueError(f"run_filter: P0[{b}] is not positive semi-definite (smallest eigenvalue {low[b]:.3g})")
+    ok = _factorisable(np.ascontiguousarray(P0, dtype=float), act, n_act, n_act + lam, jitter)
+    if not ok.all():
+        b = int(np.flatnonzero(~ok)[0])
+        raise ValueError(f"run_filter: P0[{b}] cannot be factorised (its Cholesky factor does not exist even "
+                         "with diagonal jitter: every variance of the free states is zero)")
+
+
+@numba.njit(cache=True)
+def _factorisable(P0, act, n_act, c, jitter):
+    """(B,) whether :func:`_robust_sqrt` factorises c[b] P0[b] over the states act[b, :n_act[b]]."""
+    B, n = P0.shape[0], P0.shape[1]
+    L = np.empty((n, n))
+    A = np.empty((n, n))
+    ok = np.empty(B, dtype=np.bool_)
+    for b in range(B):
+        ok[b] = _robust_sqrt(P0[b].copy(), c[b], jitter, L, A, act[b], n_act[b]) >= 0
+    return ok
 
 
 #: Named filter configurations. A thresholds file names the one it was derived for

@@ -486,3 +486,29 @@ def test_the_position_on_an_end_stop_does_not_push_the_leaks(plant_vector):
             for learners in (("F_d", "c_m_L"), None)}
     assert peak[("F_d", "c_m_L")].mean() <= peak[None].mean()
     assert max(peak[None].max(), peak[("F_d", "c_m_L")].max()) < 0.16
+
+
+def test_p0_is_checked_at_the_boundary_and_identical_calls_agree(plant_vector):
+    """A P0 the filter cannot factorise (all zeros, a NaN), or one that is not a covariance
+    (asymmetric, indefinite), is refused in one line naming P0; the filter never builds sigma
+    points from an uninitialised work array (identical calls gave p_A 3 MPa apart). A P0 that is
+    only positive semi-definite (a zero variance) is factorised with jitter, the same every call."""
+    runs = _runs(plant_vector, T=201)
+    cfg = FilterConfig()
+    n = len(state_scale(cfg))
+    z0 = initial_mean(runs.inp, cfg)
+    good = np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None]
+    bad = {"all zeros": np.zeros((1, n, n)), "a NaN": good.copy(), "asymmetric": good.copy(),
+           "indefinite": good.copy()}
+    bad["a NaN"][0, 3, 3] = np.nan
+    bad["asymmetric"][0, 0, 1] = 0.5
+    bad["indefinite"][0, 2, 2] = -1.0
+    for why, P0 in bad.items():
+        with pytest.raises(ValueError, match="P0") as err:
+            run_filter(runs.inp, cfg, z0=z0, P0=P0)
+        assert "\n" not in str(err.value), why
+    semi = good.copy()
+    semi[0, 5, 5] = 0.0  # v known exactly at the start: positive semi-definite
+    a, b = (run_filter(runs.inp, cfg, z0=z0, P0=semi) for _ in range(2))
+    assert np.array_equal(a.mean, b.mean) and np.array_equal(a.std, b.std)
+    assert np.all(np.isfinite(a.mean)) and a.n_jitter[0] >= 1
