@@ -53,13 +53,6 @@ def main() -> None:
     print(f"batched over 100 recordings of 4 s (one core): {tb:.2f} s = {tb / 100 * 1e3:.0f} ms per run "
           f"-> 1000 runs ~ {tb * 10:.0f} s on one core")
 
-    from fdi.ukf import PRESETS
-    leg = PRESETS["legacy"]  # the default of sessions 1-5 (12 states), docs/fdi-history.md
-    run_filter(runs.inp, leg)
-    bl = min(_timed(lambda: run_filter(runs.inp, leg)) for _ in range(3))
-    tl = _timed(lambda: run_filter(mc.inp, leg))
-    print(f"legacy filter (sessions 1-5, 12 states): 4 s in {bl:.3f} s -> {4.0 / bl:.0f}x real time; "
-          f"100 recordings {tl:.2f} s = {tl / 100 * 1e3:.0f} ms per run")
     _bench_isolation(plant, runs)
     _bench_long_recording(plant)
 

@@ -29,7 +29,7 @@ from sam import load_plant  # noqa: E402
 from fdi import tune  # noqa: E402
 from fdi.detect import Thresholds  # noqa: E402
 from fdi.montecarlo import make_batch  # noqa: E402
-from fdi.ukf import initial_mean, noise_vectors, preset, state_scale  # noqa: E402
+from fdi.ukf import FilterConfig, initial_mean, noise_vectors, state_scale  # noqa: E402
 
 RUN_S = 4.0  #: the issue's run length [s]
 N_HEALTHY = 230  #: the healthy runs of docs/fdi.md's tune (`--runs 230`)
@@ -52,7 +52,7 @@ def filterpy_seconds_per_run(plant, th: Thresholds, n_ref: int = 400) -> float:
     from test_fdi_ukf import _filterpy_reference
 
     runs = make_batch(plant, 1, 1000, duration=RUN_S, position_sensor=th.position_sensor)
-    cfg = preset(th.filter)
+    cfg = FilterConfig()
     z0 = initial_mean(runs.inp, cfg)
     P0 = np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None].copy()
     short = replace(runs.inp, **{k: getattr(runs.inp, k)[:, :n_ref] for k in ("u", "pA", "pB", "pos")})

@@ -52,18 +52,6 @@ def add_commands(subparsers) -> None:
                    help="base sample size of the nuisance GSA (a power of 2 recommended; its 2N distinct "
                    "experiments set h)")
     g.add_argument("--workers", type=int, default=1, help="local worker processes")
-    g.add_argument("--filter", default="shipped",
-                   help="filter configuration to derive the thresholds for (a name in fdi.ukf.PRESETS: shipped, calibrated, "
-                        "calibrated_qn_frozen, calibrated_softfreeze, calibrated_kint3, calibrated_softfreeze_kint3); "
-                        "replay and tune then run the filter the thresholds file names")
-    g.add_argument("--detector", default="cusum", choices=("cusum", "glr"),
-                   help="alarm source the file is for: cusum (default) or glr (also derives the GLR thresholds from "
-                        "the nuisance GSA's healthy runs; tune then alarms on the GLR)")
-    g.add_argument("--votes", default="detectable", choices=("detectable", "specific"),
-                   help="which residuals vote for a fault: detectable (default; its share of the residual over the "
-                        "leakage box is >= 3 healthy spreads: for the likelihood isolation, which names the fault "
-                        "itself) or specific (the fault explains >= half of the residual's variance: for "
-                        "isolation = \"signature\", which names the first alarm's fault)")
     g.add_argument("--sample-rate", type=float, default=1000.0,
                    help="Hz: the sampling rate of the recordings the thresholds are for (default 1000; "
                    "1000 / rate must be a whole number, at least 100 Hz); replay refuses a recording "
@@ -118,10 +106,7 @@ def _load_thresholds(path):
     if not path:
         return None  # the shipped file of the recording's position sensor (replay) or of the encoder
     try:
-        th = Thresholds.load(path)
-        from .ukf import preset
-        preset(th.filter)
-        return th
+        return Thresholds.load(path)
     except (OSError, ValueError, TypeError) as exc:
         raise UserError(f"{path}: not a thresholds file from `samfdi fdi thresholds`: {exc}") from None
 
@@ -142,9 +127,6 @@ def _thresholds(args) -> int:
     for name, n in (("--n-leak", args.n_leak), ("--n-nuisance", args.n_nuisance)):
         if n < 4:
             raise UserError(f"{name}: need at least 4, got {n}")
-    from .ukf import PRESETS
-    if args.filter not in PRESETS:
-        raise UserError(f"--filter: unknown filter {args.filter!r}; known: {', '.join(PRESETS)}")
     trigger = TRIGGER_LEVEL if args.trigger_level is None else args.trigger_level
     if not (math.isfinite(trigger) and FA_LEVEL <= trigger <= 1.0):
         raise UserError(f"--trigger-level: {args.trigger_level:g} is not a rate per run between the false-alarm "
@@ -152,8 +134,7 @@ def _thresholds(args) -> int:
     plant = _plant(args)
     out = output_folder(args.out, OUTPUT_FILES, args.force)
     th, report = compute_thresholds(plant, N_leak=args.n_leak, N_nuisance=args.n_nuisance, trigger_level=trigger,
-                                    workers=args.workers, filter=args.filter, detector=args.detector,
-                                    vote_rule=args.votes, progress=True, sample_dt_s=round(k) * 1e-3,
+                                    workers=args.workers, progress=True, sample_dt_s=round(k) * 1e-3,
                                     position_sensor=args.position_sensor)
     print(describe(th))
     for p in write_thresholds(th, report, out):

@@ -120,8 +120,11 @@ SHIPPED_BY_SENSOR = {"encoder": SHIPPED_THRESHOLDS, "linear": SHIPPED_THRESHOLDS
 
 
 #: The allowed values of the Thresholds fields that name a method.
-CHOICES = {"isolation": ("signature", "likelihood"), "detector": ("cusum", "glr"),
-           "position_sensor": tuple(SHIPPED_BY_SENSOR)}
+CHOICES = {"position_sensor": tuple(SHIPPED_BY_SENSOR)}
+#: keys of older thresholds files whose options were retired (docs/fdi-design.md, "Retired"): the
+#: value each may still hold (the one the detector has), or None when any value is ignored
+RETIRED_KEYS = {"isolation": "likelihood", "detector": "cusum", "filter": "shipped", "confusable": None,
+                "glr_h": None, "glr_start_s": None, "glr_window_s": None}
 
 
 #: s: the healthy-run lengths a thresholds file may state its level for: at least a tune fault
@@ -154,8 +157,6 @@ RANGE_FIELDS = {
     "baseline_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
     "transient_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
     "nis_hold_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
-    "glr_start_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
-    "glr_window_s": (0.0, MAX_RUN_LENGTH_S, "a finite number >= 0 (a duration in seconds)"),
     "notch_jump_window_s": (1e-3, 60.0, "a window in seconds (1e-3 to 60)"),
     "band_V": (0.0, 1e3, "a finite number >= 0 (an input band in volts)"),
     "nis_limit": (0.0, 1e12, "a finite number >= 0 (a weighted NIS)"),
@@ -179,7 +180,7 @@ def _is_regime_list(test):
 
 
 #: the per-hypothesis and per-parameter tables of a thresholds file: (the keys it must have,
-#: the check of each value, what a valid value is). glr_h may be left out (the CUSUM detector).
+#: the check of each value, what a valid value is).
 TABLE_FIELDS = {
     "h": (tuple(HYPOTHESES) + (NOTCH_TRIGGER,), _is_positive,
           f"a CUSUM threshold in sigma s, or the {NOTCH_TRIGGER} trigger's in sigma (> 0)"),
@@ -188,7 +189,6 @@ TABLE_FIELDS = {
     "votes": (tuple(PARAMS), _is_regime_list(lambda b: isinstance(b, bool)),
               f"a list of {len(REGIMES)} true/false, one per regime {REGIMES}"),
     "nuisance_sd": (tuple(PARAMS), _is_positive, "a spread (> 0, SI)"),
-    "glr_h": (tuple(PARAMS), _is_positive, "an evidence threshold in nats (> 0)"),
 }
 
 #: keys a table may leave out: files before session 25 have no notch-flow trigger
@@ -210,12 +210,8 @@ def _check_tables(data: dict) -> None:
             if not ok(value):
                 raise ValueError(f"'{name}.{key}' = {value!r} is not {what}")
         missing = [k for k in keys if k not in table and k not in OPTIONAL_KEYS.get(name, ())]
-        if missing and name != "glr_h":
+        if missing:
             raise ValueError(f"{name!r} has no value for {', '.join(map(repr, missing))}")
-    pairs = data.get("confusable", [])
-    if not (isinstance(pairs, list) and all(isinstance(p, list) and len(p) == 2 and set(p) <= set(HYPOTHESES)
-                                            for p in pairs)):
-        raise ValueError(f"'confusable' = {pairs!r} is not a list of pairs of {', '.join(HYPOTHESES)}")
 
 
 @dataclass(frozen=True)
@@ -262,8 +258,6 @@ class Thresholds:
         "K_int": [1.0e-9] * 5, "K_extA": [5e-10] * 5, "K_extB": [6e-10] * 5, "offset": [5e-3] * 5})
     #: regimes in which each parameter's change residual votes (True) or is held (False)
     votes: dict = field(default_factory=lambda: {k: [True] * 5 for k in PARAMS})
-    confusable: list = field(default_factory=lambda: [["K_int", "offset-"], ["K_extA", "offset-"],
-                                                       ["K_extB", "offset+"]])
     band_V: float = 0.3  #: |u| below this: "hold"
     transient_s: float = 0.3
     #: Pa; chamber pressures within this of the supply and of the tank pressure are "pinned"
@@ -298,13 +292,6 @@ class Thresholds:
     nuisance_sd: dict = field(default_factory=lambda: {
         "K_int": 1.00e-9, "K_extA": 5.14e-10, "K_extB": 6.07e-10, "offset": 5.19e-3})
     source: str = "placeholder defaults (no thresholds file)"
-    #: the filter configuration (a name in fdi.ukf.PRESETS) these thresholds were derived
-    #: for; replay and tune run that filter
-    filter: str = "shipped"
-    #: how an alarm is isolated and sized: "signature" (the first alarming hypothesis, the
-    #: confusable pairs, the estimate's change; sessions 1-5) or "likelihood" (the bank of
-    #: constrained filters of fdi.isolate, session 6)
-    isolation: str = "likelihood"
     #: "likelihood": the stated false-isolation level the log-likelihood margin is derived
     #: from (fdi.isolate.margin_for); not fitted to any run
     false_isolation_level: float = 0.01
@@ -324,16 +311,6 @@ class Thresholds:
     #: "likelihood": also test every pair of faults after the alarm (fdi.isolate.run_pairs,
     #: session 7) so that several simultaneous faults are named
     several_faults: bool = True
-    #: alarm source: "cusum" (the change test on the estimates) or "glr" (fdi.glr: scheduled
-    #: banks, the best fault's log-likelihood lead over "no change"; session 7, an option)
-    detector: str = "cusum"
-    #: "glr": threshold per fault hypothesis [nats], from the nuisance GSA's healthy runs
-    glr_h: dict = field(default_factory=dict)
-    #: "glr": s after the baseline window before the first GLR window (the detection filter's
-    #: calibration states are still converging right after it)
-    glr_start_s: float = 0.0
-    #: "glr": window length [s] (restarted every fdi.glr.RESTART_S; longer windows overlap)
-    glr_window_s: float = 0.5
 
     @classmethod
     def load(cls, path: str | Path) -> "Thresholds":
@@ -344,7 +321,12 @@ class Thresholds:
             data = tomllib.loads(text)
         else:
             data = json.loads(text)
-        data = data.get("thresholds", data)
+        data = dict(data.get("thresholds", data))
+        for key, kept in RETIRED_KEYS.items():
+            if key in data and kept is not None and data[key] != kept:
+                raise ValueError(f"{key!r} = {data[key]!r}: that option was retired (only {kept!r} is left); derive "
+                                 "the thresholds again with `samfdi fdi thresholds`")
+            data.pop(key, None)
         known = set(cls.__dataclass_fields__)
         for key in data:
             if key not in known:
@@ -384,14 +366,6 @@ class Thresholds:
         """The weight of the filter's std in ``param``'s change residual (:attr:`filter_sd_weight`)."""
         return float(self.filter_sd_weight.get(param, 1.0))
 
-    def confusable_pairs(self) -> set:
-        return {frozenset(p) for p in self.confusable}
-
-
-#: Fault pairs whose signatures are too alike to tell apart (kept for reference; the
-#: thresholds file carries the pairs the leakage GSA found, ``Thresholds.confusable``).
-CONFUSABLE = {frozenset(("K_int", "offset-")), frozenset(("K_extA", "offset-")),
-              frozenset(("K_extB", "offset+"))}
 
 
 def regimes(u: np.ndarray, dt: float, band: float = 0.3, transient_s: float = 0.3) -> np.ndarray:
@@ -700,9 +674,9 @@ def notch_armed(out: FilterOutput, th: Thresholds, ready: np.ndarray) -> np.ndar
 
 
 def uses_notch_trigger(out: FilterOutput, th: Thresholds) -> bool:
-    """Whether the notch-flow trigger runs: the thresholds have its h, the likelihood bank names
-    what it finds (it is no fault hypothesis) and the detection filter has notch-flow states."""
-    return NOTCH_TRIGGER in th.h and th.isolation == "likelihood" and has_notch_states(out)
+    """Whether the notch-flow trigger runs: the thresholds have its h and the detection filter has
+    notch-flow states."""
+    return NOTCH_TRIGGER in th.h and has_notch_states(out)
 
 
 def has_notch_states(out: FilterOutput) -> bool:
@@ -786,7 +760,7 @@ def alarm_judging(out: FilterOutput, th: Thresholds, baseline=None) -> dict:
     from . import isolate
 
     return {"confirm": isolate.confirm_evidence(th),
-            "restart": None if th.detector == "glr" else restarted_statistics(out, th, baseline),
+            "restart": restarted_statistics(out, th, baseline),
             "hidden": held_on_stop(out, th), "on_stop": on_end_stop(out)}
 
 
@@ -847,10 +821,6 @@ class Diagnosis:
         return json.dumps(asdict(self), indent=2, default=float)
 
 
-def _normal_cdf(x: float) -> float:
-    return 0.5 * (1.0 + math.erf(x / math.sqrt(2.0)))
-
-
 def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
              stats: dict | None = None, baseline=None, decision=None) -> Diagnosis:
     """The diagnosis of filter run b. With ``th.isolation == "likelihood"`` an alarm is
@@ -870,24 +840,7 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
     if "offset+" in alarms and "offset-" in alarms:
         drop = "offset+" if alarms["offset+"] > alarms["offset-"] else "offset-"
         del alarms[drop]
-    tail = slice(max(0, len(t) - max(1, int(0.5 / max(t[1] - t[0], 1e-9)))), None) if len(t) > 1 else slice(None)
-    base = (baseline_values(out, th)[b] if baseline is None
-            else np.broadcast_to(np.atleast_2d(baseline), (out.mean.shape[0], 4))[b])
     size, conf = {}, {}
-    for h in (a for a in alarms if a in HYPOTHESES):  # the notch-flow trigger names no parameter
-        j, sign = HYPOTHESES[h]
-        # size of the change: estimate over the last 0.5 s minus the healthy baseline
-        m = float(np.mean(out.mean[b, tail, j])) - float(base[list(PARAMS).index(h.rstrip("+-"))])
-        s = float(np.mean(out.std[b, tail, j]))
-        if h.startswith("K_"):
-            size[h] = {"value": float(leak_lpm(m)), "minus_2sigma": float(leak_lpm(m - 2 * s)),
-                       "plus_2sigma": float(leak_lpm(m + 2 * s)), "unit": "L/min at 10 MPa",
-                       "K_m3_per_s_sqrtPa": m}
-        else:
-            size[h] = {"value": 100 * m, "minus_2sigma": 100 * (m - 2 * s), "plus_2sigma": 100 * (m + 2 * s),
-                       "unit": "% of spool travel"}
-        s_tot = math.sqrt(s * s + th.nuisance_sd.get(h.rstrip("+-"), 0.0) ** 2)
-        conf[h] = _normal_cdf(sign * m / max(s_tot, 1e-300))
     dt_s = t[1] - t[0] if len(t) > 1 else 0.0
     health = {"nan_samples": int(out.n_nan[b]), "jitter_events": int(out.n_jitter[b]),
               "covariance_resets": int(out.n_cov_reset[b]), "state_resets": int(out.n_state_reset[b]),
@@ -903,28 +856,15 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
     names = sorted(alarms, key=alarms.get)
     note = ""
     iso_time, lik = None, {}
-    use_bank = th.isolation == "likelihood" and names and out.inp is not None
-    if use_bank:
+    if names:
         status, isolated, size, conf, iso_time, lik, note = _likelihood_isolation(out, th, b, stats, decision,
                                                                                   baseline)
-    elif not names:
-        if nis_time is not None:
-            status, isolated = "fault, not isolable", []
-            note = ("the model stopped fitting the measurements (NIS alarm) but no fault parameter "
-                    "explains it: an unmodelled fault, a sensor fault or a plant-file mismatch")
-        else:
-            status, isolated = "healthy", []
-    elif len(names) == 1:
-        status, isolated = "fault", names
+    elif nis_time is not None:
+        status, isolated = "fault, not isolable", []
+        note = ("the model stopped fitting the measurements (NIS alarm) but no fault parameter "
+                "explains it: an unmodelled fault, a sensor fault or a plant-file mismatch")
     else:
-        pairs = th.confusable_pairs()
-        confusable = any(frozenset((a, c)) in pairs for a in names for c in names if a != c)
-        if confusable:
-            status, isolated = "fault, not isolable", names
-            note = ("the alarmed hypotheses have similar signatures on the chamber pressures "
-                    "(valve offset vs leakage); the estimates cannot tell them apart here")
-        else:
-            status, isolated = "several faults", names
+        status, isolated = "healthy", []
     warning = model_fit_warning(nis_time, health)
     if warning:
         health["model_fit_warning"] = warning
@@ -954,7 +894,7 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0,
                     "run_length_s": th.run_length_s, "filter_sd_weight": {p: th.sd_weight(p) for p in PARAMS},
                     "cusum_memory_s": th.memory_s, "long_stroke_s": th.long_stroke_s,
                     "long_stroke_drift_sigma": th.long_stroke_drift,
-                    "isolation": th.isolation, "position_sensor": th.position_sensor, "source": th.source},
+                    "isolation": "likelihood", "position_sensor": th.position_sensor, "source": th.source},
         note=note,
     )
 

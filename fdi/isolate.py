@@ -72,13 +72,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .ukf import (
-    I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, K_PER_LPM, N_AUG, N_MODEL, PRESETS, SCALE, FilterConfig,
+    I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, K_PER_LPM, N_AUG, N_MODEL, SCALE, FilterConfig,
     FilterOutput, n_states, param_layout, run_filter, sample_step, state_scale,
 )
 
 #: The filter whose calibration states learn the nuisance before the onset (docs/fdi-history.md,
 #: session 4: load mass, B_eff and the four notch flows); its fault states are held.
-REFERENCE = PRESETS["calibrated"]
+REFERENCE = FilterConfig(theta_noise_floor=1e-4, calib_hold_after_s=None)
 #: Calibration states of the reference that the CONFIRMATION bank carries as uncertain constant
 #: states (in both its hypotheses, "none" too) instead of holding them at the reference's values
 #: (:func:`confirmation_bank`, :func:`decide`'s ``conf``). A notch the machine has not yet used
@@ -236,7 +236,7 @@ def bank_config(detect: FilterConfig = REFERENCE, kept: tuple = ()) -> FilterCon
     q = list(detect.q[:N_AUG])
     for j in FAULT_IDX:
         q[j] = 0.0
-    return replace(PRESETS["shipped"], q=tuple(q), p0=detect.p0[:N_AUG], pressure_noise=detect.pressure_noise,
+    return replace(FilterConfig(), q=tuple(q), p0=detect.p0[:N_AUG], pressure_noise=detect.pressure_noise,
                    x_noise=detect.x_noise, theta_pulse=detect.theta_pulse,
                    theta_noise_floor=detect.theta_noise_floor, alpha=detect.alpha, beta=detect.beta,
                    kappa=detect.kappa, calibrate=tuple(kept), q_calib=0.0,

@@ -21,7 +21,7 @@ from .detect import (
 )
 from .ukf import (
     POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
-    model_substeps, preset, run_filter,
+    model_substeps, run_filter,
 )
 
 SENSOR_RANGE_PA = (0.0, 25e6)  #: pressure sensors of the SAM
@@ -249,7 +249,7 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
     ``plant_name``: how messages name the plant (its file)."""
     sensor = position_sensor or detect_position_sensor(rec, plant)
     thresholds = Thresholds.shipped(sensor) if thresholds is None else thresholds
-    cfg = preset(thresholds.filter) if cfg is None else cfg  # the filter the thresholds were made for
+    cfg = FilterConfig() if cfg is None else cfg
     rec, k = at_thresholds_rate(rec.measured(), thresholds)  # never the true_* columns
     inp, info = filter_input(rec, plant, drop_out_of_range=drop_out_of_range, position_sensor=sensor)
     if k > 1:

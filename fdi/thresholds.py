@@ -6,10 +6,9 @@ simulated run of the SAM followed by the batched UKF and the change residuals:
 1. **Leakage GSA** (the Table 5 box of ``scenarios/gsa/paper_leakage.toml``,
    K_int, K_extA, K_extB in 0-1 L/min at 10 MPa, plus the valve offset in +-2 %),
    faults stepping in at 1.5 s. Outputs: the mean change of every fault estimate
-   in each regime (extension/retraction x transient/steady, hold). The total index
-   of fault f on the change residual of its own parameter in regime g decides
-   whether that residual **votes** for f in g (ST >= ``VOTE_ST``); a total index of
-   another fault on it (>= ``CONFUSE_ST``) makes the pair **confusable**.
+   in each regime (extension/retraction x transient/steady, hold). The share of fault f
+   in the change residual of its own parameter in regime g (its total index) decides
+   whether that residual **votes** for f in g (at least ``VOTE_SNR`` healthy spreads).
 2. **Nuisance GSA**: Table 1's parameters that a calibration leaves uncertain,
    with narrowed ranges (each valve notch's Q_N and dp_N +-2 %, B_eff +-10 %,
    b +-20 %), plus the unknown load m_L 0-800 kg, the experiment (input kind,
@@ -46,7 +45,7 @@ from .detect import (HYPOTHESES, MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, NOTCH_TRIGG
                      own_baseline, regimes)
 from .montecarlo import pool_context
 from .synth import POSITION_SENSORS, random_input, simulate_runs
-from .ukf import preset, run_filter
+from .ukf import FilterConfig, run_filter
 
 #: s: the studies simulate at SIM_DT and filter what a logger sampling every Thresholds.sample_dt_s
 #: (a multiple of SIM_DT) would have recorded
@@ -66,7 +65,6 @@ MEMORY_S = 0.5
 #: long into an extension or retraction until this long into the rest after it, the K_int and
 #: offset CUSUMs count only what exceeds Thresholds.long_stroke_drift
 LONG_STROKE_S = 2.0
-VOTE_ST = 0.5  #: a residual votes for fault f in a regime where ST_f >= this (vote rule "specific")
 #: vote rule "detectable" (default): a residual votes in a regime where the fault's share of it
 #: over the leakage box, sqrt(ST_f Var(Y)), is at least VOTE_SNR healthy spreads sigma (nuisance
 #: GSA). Measured (shipped studies, session 11, 20 s spreads): K_int 8-11, K_extA 11-20, K_extB
@@ -74,8 +72,6 @@ VOTE_ST = 0.5  #: a residual votes for fault f in a regime where ST_f >= this (v
 #: offset's was 2.5-3.6 and voted only while retracting); with "specific" K_int voted only while
 #: extending (ST 0.26-0.38 elsewhere: confounded with the other faults, not small).
 VOTE_SNR = 3.0
-VOTE_RULES = ("specific", "detectable")
-CONFUSE_ST = 0.2  #: another fault with ST >= this on a voting residual: confusable pair
 FA_LEVEL = 0.01  #: stated false-alarm level per healthy run of Thresholds.run_length_s
 #: the rate of CUSUM alarms (triggers) per healthy run that h is set for
 #: (Thresholds.trigger_level): the confirmation bank withdraws the healthy ones (docs/fdi.md,
@@ -139,7 +135,7 @@ def _run_rows(params: np.ndarray, exp: np.ndarray, noise: np.ndarray, th: Thresh
         runs.inp.pB[i] += 20e3 * r.standard_normal(T)
         if x_noise:
             runs.inp.pos[i] += x_noise * r.standard_normal(T)
-    return run_filter(runs.inp.decimated(sample_factor(th.sample_dt_s)), preset(th.filter))
+    return run_filter(runs.inp.decimated(sample_factor(th.sample_dt_s)), FilterConfig())
 
 
 _NOMINAL = None
@@ -210,29 +206,17 @@ def _nuisance_model(X: np.ndarray, th: Thresholds):
     out = _run_rows(_nuisance_params(X), X[:, -2], X[:, -1], th, duration=th.run_length_s)
     dev, sd, reg, hidden, ready = _dev(out, th)
     return (_regime_stat(dev, reg, hidden, ready, th.warmup_s + th.baseline_s, "rms", th.sample_dt_s),
-            (dev, sd, reg, hidden, ready, _glr_maxima(out, th), long_stroke_mask(out, th),
+            (dev, sd, reg, hidden, ready, long_stroke_mask(out, th),
              _notch_maxima(out, th, ready)))
 
 
 def _notch_maxima(out, th: Thresholds, ready) -> np.ndarray | None:
     """(n,) per-run maxima of the notch-flow trigger's statistic (fdi.detect.notch_jump) of the
-    healthy runs in ``out``, armed as fdi.detect.statistics arms it; None for the GLR detector
-    or a filter without notch-flow states."""
-    if th.detector != "cusum" or not has_notch_states(out):
+    healthy runs in ``out``, armed as fdi.detect.statistics arms it; None for a filter without
+    notch-flow states."""
+    if not has_notch_states(out):
         return None
     return notch_jump(out, th, notch_armed(out, th, ready), int(round(th.warmup_s / th.sample_dt_s))).max(axis=1)
-
-
-def _glr_maxima(out, th: Thresholds):
-    """(n, 4) per-run maxima of the GLR statistics (fdi.glr) of the healthy runs in ``out``
-    after the baseline window, in FAULTS order; None unless th.detector == "glr"."""
-    if th.detector != "glr":
-        return None
-    from .glr import glr_statistics
-
-    g = glr_statistics(out, None, int(round((th.warmup_s + th.baseline_s + th.glr_start_s) / out.inp.dt)),
-                       window_s=th.glr_window_s)
-    return np.stack([v.max(axis=1) for v in g.values()], axis=1)
 
 
 def _problems():
@@ -312,21 +296,13 @@ def _gumbel_quantile(x: np.ndarray, p: float) -> float:
 def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISANCE, seed: int = 2011,
                        workers: int = 1, fa_level: float = FA_LEVEL, trigger_level: float | None = TRIGGER_LEVEL,
                        drift: float = 1.0, filter_sd_weight: dict | None = None,
-                       filter: str = "shipped", detector: str = "cusum", glr_start_s: float = 0.0,
-                       glr_window_s: float = 0.5, vote_rule: str = "detectable",
                        progress: bool = False, sample_dt_s: float = SIM_DT, memory_s: float | None = MEMORY_S,
                        run_length_s: float = NUISANCE_DURATION,
                        long_stroke_s: float | None = LONG_STROKE_S,
                        position_sensor: str = "encoder") -> tuple[Thresholds, dict]:
-    """Run both studies and derive the thresholds. Returns (thresholds, report). ``vote_rule``
-    (:data:`VOTE_RULES`): "detectable" (the default: a residual votes for f where f's share of
-    it over the leakage box is at least VOTE_SNR healthy spreads; for the "likelihood"
-    isolation, where the alarm only has to come early and the bank names the fault) or
-    "specific" (sessions 1-8: where f explains at least VOTE_ST of its variance, so that the
-    first alarm names the fault, what the "signature" isolation needs). With
-    ``detector="glr"`` the nuisance GSA's healthy runs also give the GLR thresholds
-    (:func:`fdi.glr.glr_threshold`, level alpha / 4 per fault hypothesis: Bonferroni over the
-    four statistics, the rule of the CUSUM thresholds). ``memory_s``: the CUSUM memory
+    """Run both studies and derive the thresholds. Returns (thresholds, report). A residual
+    votes for fault f where f's share of it over the leakage box is at least VOTE_SNR healthy
+    spreads (the alarm only has to come early: the bank names the fault). ``memory_s``: the CUSUM memory
     (None: the classic CUSUM); ``run_length_s``: the length of the nuisance GSA's healthy runs,
     over which the false-alarm level ``fa_level`` is stated; ``trigger_level``: the rate of
     CUSUM alarms per healthy run h is set for (>= ``fa_level``; the bank's confirmation keeps the
@@ -338,8 +314,6 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
 
     from gsa import analyze, saltelli_design
 
-    if vote_rule not in VOTE_RULES:
-        raise ValueError(f"vote_rule: {vote_rule!r} is not one of {VOTE_RULES}")
     if memory_s is not None and not 0 < memory_s < math.inf:
         raise ValueError(f"memory_s: {memory_s!r} s is not a time constant (> 0, or None for none)")
     if long_stroke_s is not None and not 0 < long_stroke_s < math.inf:
@@ -353,13 +327,10 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
         raise ValueError(f"position_sensor: {position_sensor!r} is not one of {', '.join(POSITION_SENSORS)}")
 
     _init(plant.vector())
-    preset(filter)  # a known filter name
     if sample_factor(sample_dt_s) < 1 or abs(sample_factor(sample_dt_s) * SIM_DT - sample_dt_s) > 1e-9 * sample_dt_s:
         raise ValueError(f"sample_dt_s: {sample_dt_s!r} s is not a whole multiple of the studies' {SIM_DT:g} s step")
     weights = dict(FILTER_SD_WEIGHT if filter_sd_weight is None else filter_sd_weight)
-    th0 = replace(Thresholds(), drift=drift, filter_sd_weight=weights, filter=filter, detector=detector,
-                  glr_start_s=glr_start_s,
-                  glr_window_s=glr_window_s, sample_dt_s=sample_factor(sample_dt_s) * SIM_DT,
+    th0 = replace(Thresholds(), drift=drift, filter_sd_weight=weights, sample_dt_s=sample_factor(sample_dt_s) * SIM_DT,
                   memory_s=memory_s, run_length_s=run_length_s, long_stroke_s=long_stroke_s,
                   position_sensor=position_sensor)
     lp, npb = _problems()
@@ -381,7 +352,7 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     reg = np.concatenate([p[1][2] for p in parts])
     hidden = np.concatenate([p[1][3] for p in parts])
     ready = np.concatenate([p[1][4] for p in parts])
-    long_stroke = np.concatenate([p[1][6] for p in parts])
+    long_stroke = np.concatenate([p[1][5] for p in parts])
 
     # ---- healthy variance per residual and regime (second moment over the A and B blocks)
     iid = np.r_[0:N_nuisance, N_nuisance:2 * N_nuisance]
@@ -392,9 +363,7 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
     faults = list(r_leak.factor_names[:4])  # K_int, K_extA, K_extB, offset
     ST = np.nan_to_num(r_leak.ST)
     var_leak = Y_leak[np.r_[0:N_leak, N_leak:2 * N_leak]].var(axis=0)
-    votes, confusable, vote_st, vote_snr = {}, set(), {}, {}
-    A = d_leak.split(Y_leak).f_A
-    XA = d_leak.X[:N_leak]
+    votes, vote_st, vote_snr = {}, {}, {}
     for i, p in enumerate(PARAMS):
         fi = faults.index(p)
         v, st_own, snr = [], [], []
@@ -402,33 +371,19 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
             col = names.index(f"{p}|{gname}")
             st_own.append(float(ST[fi, col]))
             snr.append(float(math.sqrt(ST[fi, col] * var_leak[col]) / sigma[p][g]))
-            v.append(bool(ST[fi, col] >= VOTE_ST) if vote_rule == "specific" else snr[-1] >= VOTE_SNR)
-            if not v[-1]:
-                continue
-            for fj, f in enumerate(faults):
-                if f == p or ST[fj, col] < CONFUSE_ST:
-                    continue
-                # sign of the other fault's effect on this residual, from the A block
-                c = np.nan_to_num(np.corrcoef(XA[:, fj], A[:, col])[0, 1], nan=1.0)
-                a = f if f != "offset" else ("offset+" if c >= 0 else "offset-")
-                hyps = [h for h in HYPOTHESES if h.rstrip("+-") == p]
-                if p == "offset":
-                    hyps = ["offset+" if c >= 0 else "offset-"]
-                for h in hyps:
-                    if a.rstrip("+-") != h.rstrip("+-"):
-                        confusable.add(tuple(sorted((a, h))))
+            v.append(snr[-1] >= VOTE_SNR)
         if not any(v):  # never silence a hypothesis entirely: vote where it shows most
             v[int(np.argmax(st_own))] = True
         votes[p] = v
         vote_st[p] = st_own
         vote_snr[p] = snr
 
-    th1 = replace(th0, sigma=sigma, votes=votes, confusable=[list(c) for c in sorted(confusable)])
+    th1 = replace(th0, sigma=sigma, votes=votes)
 
     # ---- CUSUM thresholds for the stated false-alarm level, from the same healthy runs
     st = _healthy_statistics(dev, sd, reg, hidden, ready, long_stroke, th1)
     maxima = {h: g.max(axis=1) for h, g in st.items()}
-    notch = [p[1][7] for p in parts]
+    notch = [p[1][6] for p in parts]
     if all(m is not None for m in notch):  # a sixth test: the level is split over six
         maxima[NOTCH_TRIGGER] = np.concatenate(notch)
     q = 1.0 - (fa_level if trigger_level is None else trigger_level) / len(maxima)
@@ -438,30 +393,20 @@ def compute_thresholds(plant: Plant, N_leak: int = 16, N_nuisance: int = N_NUISA
                               for i, p in enumerate(PARAMS)},
                  source=(f"samfdi fdi thresholds: leakage GSA N={N_leak} ({d_leak.n_runs} runs), nuisance GSA "
                          f"N={N_nuisance} ({d_nui.n_runs} runs), seed {seed}"
-                         + ("" if filter == "shipped" else f", filter {filter}")
-                         + ("" if vote_rule == "detectable" else f", votes {vote_rule}")
                          + f", healthy runs {run_length_s:g} s"
                          + ("" if position_sensor == "encoder" else f", {position_sensor} position sensor")
                          + ("" if th1.sample_dt_s == SIM_DT else f", sampled at {1 / th1.sample_dt_s:g} Hz")))
-    if detector == "glr":
-        from .glr import glr_threshold
-        from .isolate import FAULTS
-
-        gmax = np.concatenate([p[1][5] for p in parts])
-        th = replace(th, glr_h={f: glr_threshold(gmax[:, i], fa_level / len(FAULTS)) for i, f in enumerate(FAULTS)})
     ranking = {nm: r_nui.ranked_factors(nm)[:3] for nm in names}
     st_nui = {nm: {f: float(np.nan_to_num(r_nui.ST[i, j])) for i, f in enumerate(r_nui.factor_names)}
               for j, nm in enumerate(names)}
     st_leak = {nm: {f: float(np.nan_to_num(r_leak.ST[i, j])) for i, f in enumerate(r_leak.factor_names)}
                for j, nm in enumerate(names)}
-    report = {"vote_rule": vote_rule, "votes_ST_own": vote_st, "votes_snr_own": vote_snr, "leakage_ST": st_leak, "nuisance_ST": st_nui, "nuisance_top3": ranking,
+    report = {"votes_ST_own": vote_st, "votes_snr_own": vote_snr, "leakage_ST": st_leak, "nuisance_ST": st_nui, "nuisance_top3": ranking,
               "healthy_maxima_quantiles": {k: [float(np.quantile(v, 0.5)), float(np.quantile(v, 0.99)),
                                                float(np.max(v))] for k, v in maxima.items()},
               # the studies' own healthy runs that a CUSUM alarms in (at most the trigger level)
               "healthy_trigger_fraction": float(np.mean(np.any([v > h[k] for k, v in maxima.items()], axis=0))),
               "n_runs": {"leakage": d_leak.n_runs, "nuisance": d_nui.n_runs},
-              "glr_healthy_maxima_quantiles": ({} if detector != "glr" else {
-                  f: [float(np.quantile(gmax[:, i], q)) for q in (0.5, 0.9, 0.99, 1.0)] for i, f in enumerate(FAULTS)}),
               "narrowed_ranges": {**{k: f"+-{100 * v:g} %" for k, v in NARROWED.items()}, "m_L": "0-800 kg"}}
     return th, report
 
@@ -550,7 +495,7 @@ def describe(th: Thresholds) -> str:
     for p, s in th.sigma.items():
         conv = (lambda x: f"{100 * x:.2f} %") if p == "offset" else (lambda x: f"{float(leak_lpm(x)):.3f} L/min")
         lines.append(f"| {p} | " + " | ".join(conv(x) + ("*" if v else "") for x, v in zip(s, th.votes[p])) + " |")
-    lines += ["", f"confusable pairs: {th.confusable}", f"source: {th.source}", f"filter: {th.filter}"]
+    lines += ["", f"source: {th.source}"]
     return "\n".join(lines)
 
 

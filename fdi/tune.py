@@ -45,7 +45,7 @@ from . import calibration, isolate, rates
 from .detect import HYPOTHESES, Thresholds, alarm_judging, statistics
 from .montecarlo import LEAKS, LONG_CYCLES, leak_flow_lpm, make_batch, make_reference_batch, pool_context
 from .synth import POSITION_SENSORS
-from .ukf import preset, run_filter
+from .ukf import FilterConfig, run_filter
 
 FAULT_SIZES = {"K_int": (0.1, 0.25, 0.5, 1.0), "K_extA": (0.1, 0.25, 0.5, 1.0),
                "K_extB": (0.1, 0.25, 0.5, 1.0), "offset": (0.01, -0.01, 0.02, -0.02, 0.05)}
@@ -110,20 +110,19 @@ def _chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, inputs: str =
     onset = ONSET if fault is None else draw_onsets(n, seed)
     runs = make_batch(plant, n, seed, fault=fault, size=size, duration=run_seconds(th, fault), onset=onset,
                       position_sensor=th.position_sensor, inputs=inputs)
-    inp, cfg = runs.inp, preset(th.filter)
+    inp, cfg = runs.inp, FilterConfig()
     if reference:
         ref = make_reference_batch(plant, runs.truth["params"], seed, duration=REFERENCE_S,
                                    position_sensor=th.position_sensor)
         inp, cfg = calibration.apply(inp, cfg, calibration.learn(run_filter(ref.inp, cfg), cfg))
     out = run_filter(inp, cfg)
-    st, th = _alarm_statistics(out, th)
+    st = statistics(out, th)
     k0 = runs.truth["k_onset"]
     res = _window_maxima(st, th, k0)
     res.update({"m_L": runs.truth["m_L_kg"], "resets": out.n_cov_reset, "k_onset": k0})
     if fault in LEAKS:
         res["leak_flow_lpm"] = leak_flow_lpm(runs, fault, k0, WITHIN_S)
-    if th.isolation == "likelihood":
-        res.update(_bank_decisions(out, st, th, k0, fault is not None))
+    res.update(_bank_decisions(out, st, th, k0, fault is not None))
     if bound:
         k_b = k0 if fault is not None else np.round(draw_onsets(n, seed) / DT).astype(np.int64)
         res["evidence"] = onset_bound.onset_evidence(out, k_b)
@@ -147,7 +146,7 @@ def _window_maxima(st: dict, th: Thresholds, k0: np.ndarray) -> dict:
     first = np.full((n, len(HYP)), -1, dtype=np.int64)
     mx = np.zeros((n, len(HYP), 3))
     for i, h in enumerate(HYP):
-        if h not in st:  # "glr": one offset statistic, in the offset+ column
+        if h not in st:  # no statistic: never alarms
             continue
         r = st[h] / th.h[h]
         above = r > 1.0
@@ -156,23 +155,6 @@ def _window_maxima(st: dict, th: Thresholds, k0: np.ndarray) -> dict:
         mx[:, i, 1] = np.where(post, r, -np.inf).max(axis=1)
         mx[:, i, 2] = r.max(axis=1)
     return {"first": first, "max": mx}
-
-
-def _alarm_statistics(out, th: Thresholds):
-    """The alarm statistics name -> (B, T) and the thresholds whose ``h`` they are compared
-    with: the CUSUMs of fdi.detect, or with ``th.detector == "glr"`` the GLR statistics of
-    fdi.glr under the HYP names (offset as "offset+") with h = th.glr_h."""
-    if th.detector != "glr":
-        return statistics(out, th), th
-    from dataclasses import replace
-
-    from .glr import glr_statistics
-
-    g = glr_statistics(out, None, int(round((th.warmup_s + th.baseline_s + th.glr_start_s) / DT)),
-                       window_s=th.glr_window_s)
-    names = {"offset": "offset+"}
-    return ({names.get(k, k): v for k, v in g.items()},
-            replace(th, h={names.get(k, k): v for k, v in th.glr_h.items()}))
 
 
 def _bank_decisions(out, st, th: Thresholds, k_onset: np.ndarray, faulty: bool) -> dict:
@@ -468,7 +450,7 @@ def _chunk_path(chunk_dir: Path, job, tag: str = CHUNK_VERSION) -> Path:
 
 def _load(chunk_dir, jobs, name, tag: str = CHUNK_VERSION):
     parts = [np.load(_chunk_path(chunk_dir, j, tag)) for j in jobs if j[0] == name]
-    keys = ("first", "max", "m_L", "k_onset") + (BANK_KEYS if all("conf_k" in p for p in parts) else ()) \
+    keys = ("first", "max", "m_L", "k_onset") + BANK_KEYS \
         + (("evidence",) if all("evidence" in p for p in parts) else ()) \
         + (("leak_flow_lpm",) if all("leak_flow_lpm" in p for p in parts) else ())
     return {k: np.concatenate([p[k] for p in parts]) for k in keys}
@@ -508,7 +490,7 @@ def analyse(out_dir: Path, jobs, th: Thresholds, tag: str = CHUNK_VERSION) -> di
                "healthy_runs": fa["runs"], "trigger_rate": fa["trigger_rate"],
                **{k: fa[k] for k in ("false_alarms", "false_alarm_ci", "false_alarm_verdict")},
                "healthy_run_s": run_seconds(th, None), "fault_run_s": DURATION,
-               "load_bins_kg": LOAD_BINS, "thresholds_source": th.source, "isolation": th.isolation, "rows": rows,
+               "load_bins_kg": LOAD_BINS, "thresholds_source": th.source, "isolation": "likelihood", "rows": rows,
                "isolation_decisions_within_1s": n_dec, "wrong_isolation_decisions": n_wrong,
                "wrong_isolation_rate": n_wrong / n_dec if n_dec else float("nan"),
                "smallest_detected_and_isolated_95pct_within_1s": smallest,
@@ -559,38 +541,26 @@ def _false_alarm_count(k: int, n: int, level: float) -> dict:
 def _fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
     """The metrics.json row of one fault case from its loaded chunks ``d``; ``bnd``: the bound's
     (threshold, margin) [nats] or None. 'wrong_isolation' = fraction of the decisions taken within
-    1 s of the onset (the bank's, or with signature isolation the first alarm's) that named
-    another fault hypothesis: the rate the stated false-isolation level is about."""
+    1 s of the onset (the bank's) that named another fault hypothesis: the rate the stated
+    false-isolation level is about."""
     k0 = d["k_onset"]  # (runs,) each run's own onset
     first = np.where(d["first"] >= 0, d["first"], 10**9)
-    # the first alarm that stood (the bank confirmed it) when the chunks have them, else any alarm
-    any_alarm = np.where(d["conf_k"] >= 0, d["conf_k"], 10**9) if "conf_k" in d else first.min(axis=1)
+    any_alarm = np.where(d["conf_k"] >= 0, d["conf_k"], 10**9)  # the first alarm that stood (the bank confirmed it)
     before = any_alarm < k0  # alarm before the onset: a false alarm, not a detection
     detected = (any_alarm < 10**9) & ~before
     within = detected & ((any_alarm - k0) * DT <= WITHIN_S)
     right = ("offset+" if size > 0 else "offset-") if fault == "offset" else fault
     ri = HYP.index(right)
-    if "iso_h" in d:  # likelihood isolation: the bank's decision, taken within 1 s of the onset
-        decided = within & (d["iso_h"] >= 0) & (d["iso_k"] >= k0) & ((d["iso_k"] - k0) * DT <= WITHIN_S)
-        isolated = decided & (d["iso_h"] == ri)
-        wrong = decided & (d["iso_h"] != ri)
-        exclusive = isolated  # the bank names one hypothesis
-    else:
-        first_h = np.argmin(first, axis=1)
-        decided = within
-        isolated = within & (first_h == ri)
-        wrong = within & (first_h != ri)
-        # exclusive: within 1 s only the right hypothesis (or a pair the thresholds call confusable)
-        others = [i for i, h in enumerate(HYP) if i != ri]
-        other_within = np.any([(first[:, i] < 10**9) & ((first[:, i] - k0) * DT <= WITHIN_S)
-                               for i in others], axis=0)
-        exclusive = isolated & ~other_within
+    # the bank's decision, taken within 1 s of the onset
+    decided = within & (d["iso_h"] >= 0) & (d["iso_k"] >= k0) & ((d["iso_k"] - k0) * DT <= WITHIN_S)
+    isolated = decided & (d["iso_h"] == ri)
+    wrong = decided & (d["iso_h"] != ri)
     delay = (any_alarm[detected] - k0[detected]) * DT
     lb = _load_bin(d["m_L"])
     row = {
         "fault": fault, "size": size, "unit": "%" if fault == "offset" else "L/min", "runs": int(len(first)),
         "detected_within_1s": float(within.mean()), "isolated_within_1s": float(isolated.mean()),
-        "isolated_exclusive": float(exclusive.mean()), "alarm_before_onset": float(before.mean()),
+        "isolated_exclusive": float(isolated.mean()), "alarm_before_onset": float(before.mean()),
         "mean_delay_s": float(delay.mean()) if delay.size else float("nan"),
         "isolated_runs": int(isolated.sum()), "isolated_ci": list(rates.interval(isolated.sum(), len(first))),
         "isolated_verdict": rates.verdict(isolated.sum(), len(first), TARGET_RATE),
@@ -685,7 +655,6 @@ def _size_table(label_values: list) -> list:
 def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
     """The lines of metrics.md from the metrics ``m`` of :func:`analyse`."""
     bins = [f"{int(a)}-{int(round(b))} kg" for a, b in LOAD_BINS]
-    likelihood = th.isolation == "likelihood"  # the bank names one hypothesis: 'exclusive' = 'isolated'
     wr = m["wrong_isolation_rate"]
     lines = ["# FDI tuning metrics", "",
              f"Thresholds: {th.source} (not fitted to these runs).", "",
@@ -694,13 +663,13 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
              *([f"Every machine was first calibrated on a healthy {REFERENCE_S:g} s reference recording of its own (another "
                  "load and input): `--reference`, as `fdi replay --reference` does.", ""] if reference else []),
              "Held-out healthy runs (the studies' sine, 2-4 s cycle and PRBS inputs): "
-             + _healthy_line({**m, "runs": m["healthy_runs"]}, th, bins, likelihood)
+             + _healthy_line({**m, "runs": m["healthy_runs"]}, th, bins)
              + ("" if th.trigger_level is None else
                 f" (the h were set for {th.trigger_level:g} of the nuisance study's healthy runs)"), "",
              *([f"Held-out healthy runs of the issue's 20-60 s extend/retract cycles (random period, amplitude "
                 f"{LONG_CYCLES['amplitude_V'][0]:g}-{LONG_CYCLES['amplitude_V'][1]:g} V, phase and start position: "
                 "some long strokes end on an end stop, some reverse in mid-stroke; not in the threshold studies): "
-                + _healthy_line(m["long_cycles"], th, bins, likelihood), "",
+                + _healthy_line(m["long_cycles"], th, bins), "",
                 f"All {m['all_healthy']['runs']} healthy runs: false-alarm rate "
                 + _false_alarm_text(m["all_healthy"], th), ""]
                if "long_cycles" in m else []),
@@ -710,20 +679,18 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
              f"Each fault run steps in at its own onset, uniform in [{ONSET_MIN:g}, {ONSET_MAX:g}] s; "
              "'within 1 s', 'before onset' and the delay are per run from its own onset. "
              "'isolated' = detected within 1 s and "
-             + ("the likelihood bank named the fault by 1 s after the onset (data up to its decision only)."
-                if likelihood else
-                "the first alarm names the fault; 'exclusive' = no other hypothesis alarmed within that second.")
-             + " 'wrong isolation' = fraction of the decisions within 1 s of the onset ("
-             + ("the bank's" if likelihood else "the first alarm's") + ") that named another fault hypothesis.", "",
+             "the likelihood bank named the fault by 1 s after the onset (data up to its decision only). "
+             "'wrong isolation' = fraction of the decisions within 1 s of the onset (the bank's) that named "
+             "another fault hypothesis.", "",
              *_interval_lines(m["rows"])]
     cols = ["fault", "size", "runs", "within 1 s", "isolated", f"isolated: {rates.LEVEL * 100:g} % interval",
-            f"vs {TARGET_RATE * 100:g} %", *([] if likelihood else ["exclusive"]),
+            f"vs {TARGET_RATE * 100:g} %",
             "wrong isolation", "alarm before onset", "mean delay [s]", *(f"isolated {b}" for b in bins)]
     lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in m["rows"]:
         cells = [r["fault"], _row_size(r), str(r["runs"]), _f2(r["detected_within_1s"]), _f2(r["isolated_within_1s"]),
                  _interval_text(r["isolated_ci"]), r["isolated_verdict"],
-                 *([] if likelihood else [_f2(r["isolated_exclusive"])]), _f2(r["wrong_isolation"]),
+                 _f2(r["wrong_isolation"]),
                  _f2(r["alarm_before_onset"]), _f2(r["mean_delay_s"]), *(_f2(v) for v in r["isolated_by_load"])]
         lines.append("| " + " | ".join(cells) + " |")
     smallest, by_load = m["smallest_detected_and_isolated_95pct_within_1s"], \
@@ -742,11 +709,11 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
     return lines
 
 
-def _healthy_line(r: dict, th: Thresholds, bins: list, likelihood: bool) -> str:
+def _healthy_line(r: dict, th: Thresholds, bins: list) -> str:
     """metrics.md's words for the false-alarm figures ``r`` of a healthy population
     (:func:`_healthy_rates`: ``runs``, ``false_alarm_rate``, ``false_alarm_by_load``, ``trigger_rate``)."""
     return (f"{r['runs']} x {run_seconds(th, None):g} s; false-alarm rate (any alarm "
-            f"{'that the bank confirmed ' if likelihood and th.confirm_nats > 0 else ''}per run): "
+            f"{'that the bank confirmed ' if th.confirm_nats > 0 else ''}per run): "
             f"{_false_alarm_text(r, th)}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"
                                                                  for b, v in zip(bins, r["false_alarm_by_load"]))
             + f"; runs with any CUSUM alarm (confirmed or withdrawn): {r['trigger_rate']:.3f}")

@@ -1176,41 +1176,6 @@ def _factorisable(P0, act, n_act, c, jitter):
     return ok
 
 
-#: Named filter configurations. A thresholds file names the one it was derived for
-#: (``Thresholds.filter``); replay and tune use that one. "shipped" = the defaults.
-#: "calibrated" (session 4, NOT the default: it fails 2 fdi tests, docs/fdi-history.md
-#: "Constrained update and calibration states"): clipped sigma points with the joint
-#: projection of a negative leak mean, plus relative calibration states for the load mass,
-#: B_eff and the four notch flows Q_N, and the 1e-4 rad encoder floor.
-#: Session 6: the defaults ("shipped") are the "calibrated" filter; "legacy" is the default of
-#: sessions 1-5 (12 states, mean projection, 2e-5 rad encoder floor). Session 11: the shipped
-#: encoder floor is 3e-5 rad; "calibrated" keeps 1e-4 (its thresholds file was derived with it).
-PRESETS = {
-    "shipped": FilterConfig(),
-    "calibrated": FilterConfig(
-        constraint="project_joint", theta_noise_floor=1e-4, calib_hold_after_s=None,
-        calibrate=("m_L", "B_eff", "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT"),
-        calib_noise=(("m_L", 0.25, 0.05), ("B_eff", 0.1, 0.005))),
-    "legacy": FilterConfig(constraint="project", theta_noise_floor=2e-5, calibrate=(), calib_hold_after_s=None,
-                           calib_noise=(("m_L", 0.25, 0.05),), stop_learners=None),
-}
-#: Session 5 variants of "calibrated" (options; measured in docs/fdi-history.md, "Session 5"; none
-#: passes every fdi test, so none is the default and none ships a thresholds file; derive
-#: one with ``samfdi fdi thresholds --filter NAME``):
-#: "calibrated_qn_frozen": the four notch-flow states learnt over [0, 1.5] s, then frozen
-#: (the load mass and B_eff stay free); "calibrated_softfreeze": the same, but their std is
-#: only halved at 1.5 s (``freeze_sd_factor=0.5``); "calibrated_kint3": the K_int random walk
-#: x3 (0.3 L/min/sqrt(s)), so that K_int, not the offset, takes an internal-leak step;
-#: "calibrated_softfreeze_kint3": both.
-PRESETS["calibrated_qn_frozen"] = PRESETS["calibrated"].with_(freeze_calib_s=1.5, calib_free=("m_L", "B_eff"))
-PRESETS["calibrated_kint3"] = PRESETS["calibrated"].with_(
-    q=PRESETS["calibrated"].q[:7] + (0.3 * K_PER_LPM,) + PRESETS["calibrated"].q[8:])
-PRESETS["calibrated_softfreeze"] = PRESETS["calibrated"].with_(
-    freeze_calib_s=1.5, calib_free=("m_L", "B_eff"), freeze_sd_factor=0.5)
-PRESETS["calibrated_softfreeze_kint3"] = PRESETS["calibrated_kint3"].with_(
-    freeze_calib_s=1.5, calib_free=("m_L", "B_eff"), freeze_sd_factor=0.5)
-
-
 def _calibration_hold(inp: FilterInput, cfg: FilterConfig, n: int) -> tuple[np.ndarray, np.ndarray]:
     """The process-noise gate of :attr:`FilterConfig.calib_hold_after_s`: (B, T) factors on the
     random walk (0 in long strokes, 1 elsewhere) and the (n,) states they apply to (the
@@ -1277,14 +1242,6 @@ def near_end_stop(x: np.ndarray, params: np.ndarray, margin_m: float) -> np.ndar
     x_end = stroke_ends(params)[:, None]
     with np.errstate(invalid="ignore"):
         return (x <= margin_m) | (x >= x_end - margin_m)
-
-
-def preset(name: str) -> FilterConfig:
-    """The filter configuration of a name in :data:`PRESETS`."""
-    try:
-        return PRESETS[name]
-    except KeyError:
-        raise ValueError(f"unknown filter {name!r}; known: {', '.join(PRESETS)}") from None
 
 
 def leak_lpm(K: np.ndarray) -> np.ndarray:

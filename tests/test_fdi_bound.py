@@ -6,7 +6,7 @@ import pytest
 from fdi import bound, rates, tune
 from fdi.detect import Thresholds
 from fdi.montecarlo import make_batch
-from fdi.ukf import preset, run_filter
+from fdi.ukf import FilterConfig, run_filter
 from sam import load_plant
 
 
@@ -14,7 +14,7 @@ def _evidence(fault, size, seed, nuisance=True):
     plant, th = load_plant(), Thresholds.shipped()
     onsets = tune.draw_onsets(3, seed)
     runs = make_batch(plant, 3, seed, fault=fault, size=size, onset=onsets, nuisance=nuisance)
-    out = run_filter(runs.inp, preset(th.filter))
+    out = run_filter(runs.inp, FilterConfig())
     return bound.onset_evidence(out, runs.truth["k_onset"])
 
 
@@ -68,7 +68,8 @@ def test_tune_reports_the_bound_next_to_our_detector(tmp_path):
             ev[:, 3] = [0.0, 99.0, 0.0, 0.0]  # ... and one of them is not isolable from K_extB
         np.savez(tune._chunk_path(tmp_path / "chunks", j, tag), first=np.full((n, H), -1),
                  max=np.zeros((n, H, 3)), m_L=np.array([100., 300, 600, 700]),
-                 k_onset=np.full(n, 1500), evidence=ev)
+                 k_onset=np.full(n, 1500), evidence=ev, iso_h=np.full(n, -1), iso_k=np.full(n, -1),
+                 conf_k=np.full(n, -1), n_withdrawn=np.zeros(n, dtype=int))
     m = tune.analyse(tmp_path, jobs, th, tag)
     # four healthy runs: their 99 % quantile (3.97 nats) is below the floor ln(1 / 0.01) = 4.6 nats
     assert m["bound"]["threshold_nats"] == pytest.approx(np.log(1 / th.false_alarm_level))

@@ -11,7 +11,7 @@ from sam import P, Recording, load_plant, write_recording
 from samfdi.cli import main
 from fdi import calibration
 from fdi.synth import input_signal, lpm, profile, simulate_runs
-from fdi.ukf import preset, run_filter
+from fdi.ukf import FilterConfig, run_filter
 
 DT = 1e-3
 #: the machine of these tests: its A->T notch passes 2 % less and its P->B notch 2 % more
@@ -41,7 +41,7 @@ def test_learn_recovers_the_machine_from_a_healthy_cycle():
     mis-rated notches are learnt to better than half their 2 % error."""
     from fdi.replay import filter_input
 
-    cfg = preset("shipped")
+    cfg = FilterConfig()
     inp, _ = filter_input(_recording("cycle", 300.0, 6.0, seed=3), load_plant())
     cal = calibration.learn(run_filter(inp, cfg), cfg)
     assert set(cal.factor) == set(TRUE_FACTOR)
@@ -54,7 +54,7 @@ def test_learn_recovers_the_machine_from_a_healthy_cycle():
 def test_apply_writes_the_factors_and_the_carried_priors():
     from fdi.ukf import FilterInput, POS_X
 
-    cfg = preset("shipped")
+    cfg = FilterConfig()
     p = load_plant().vector()[None]
     inp = FilterInput(DT, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), POS_X, p)
     cal = calibration.Calibration(factor={"Q_N_PB": np.array([1.02]), "B_eff": np.array([0.95])},

@@ -137,7 +137,7 @@ def test_thresholds_file_tables_are_validated(tmp_path):
         (h_minus, "", r"'h' has no value for 'offset-'"),
         (sigma_int, '"K_int" = [1.0, 2.0]', r"'sigma.K_int' = \[1.0, 2.0\] is not a list of 5"),
         ("band_V = 0.3", "band_V = -inf", r"'band_V' = -inf is not a finite number"),
-        ('["K_extA", "K_extB"]', '["K_extA", "K_extC"]', r"'confusable'"),
+        ("band_V = 0.3", 'band_V = 0.3\nisolation = "signature"', r"'isolation' = 'signature': that option was retired"),
     )
     f = tmp_path / "th.toml"
     for old, new, message in cases:
@@ -277,12 +277,12 @@ def test_long_healthy_runs_stay_healthy():
     from fdi.detect import statistics
     from fdi.montecarlo import make_batch
     from fdi.tune import _bank_decisions
-    from fdi.ukf import preset, run_filter
+    from fdi.ukf import FilterConfig, run_filter
 
     th = Thresholds.shipped()
     assert th.run_length_s == 20.0 and th.memory_s is not None
     runs = make_batch(load_plant(), 30, 424242, duration=th.run_length_s)
-    out = run_filter(runs.inp, preset(th.filter))
+    out = run_filter(runs.inp, FilterConfig())
     st = statistics(out, th)
     triggered = np.any([(g > th.h[h]).any(axis=1) for h, g in st.items()], axis=0)
     assert triggered.sum() <= binom.isf(0.01, 30, th.trigger_level) == 7
@@ -324,13 +324,13 @@ def test_restarted_tests_relearn_the_baseline():
     from sam import load_plant
     from fdi.detect import restarted_statistics, statistics
     from fdi.synth import input_signal, simulate_runs
-    from fdi.ukf import I_KINT, K_PER_LPM, preset, run_filter
+    from fdi.ukf import I_KINT, K_PER_LPM, FilterConfig, run_filter
 
     th = Thresholds.shipped()
     t = np.arange(5001) * DT
     p = load_plant().vector()
     out = run_filter(simulate_runs(np.tile(p, (2, 1)), input_signal("sine", t, amplitude=3.0, frequency=0.5), DT,
-                                   seed=8).inp, preset(th.filter))
+                                   seed=8).inp, FilterConfig())
     out.mean[:, t >= 2.5, I_KINT] += 1.0 * K_PER_LPM
     start = np.array([3500, 0])
     plain = statistics(out, th, None, start)["K_int"]
@@ -441,7 +441,7 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     from sam import load_plant
     from fdi import detect, tune
     from fdi.montecarlo import make_batch
-    from fdi.ukf import preset, run_filter
+    from fdi.ukf import FilterConfig, run_filter
 
     th = Thresholds.shipped()
     picks = {300001: 21, 300002: 18, 300004: 20}
@@ -450,12 +450,11 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     rows = list(picks.values())
     inp = replace(parts[0], **{k: np.stack([getattr(p, k)[b] for p, b in zip(parts, rows)])
                               for k in ("u", "pA", "pB", "pos", "params")})
-    out = run_filter(inp, preset(th.filter))
+    out = run_filter(inp, FilterConfig())
     k_end = np.full(3, len(out.t) - 1)
 
     def stood():
-        st, th_ = tune._alarm_statistics(out, th)
-        return tune._bank_decisions(out, st, th_, k_end, False)["conf_k"] >= 0
+        return tune._bank_decisions(out, detect.statistics(out, th), th, k_end, False)["conf_k"] >= 0
 
     assert not stood().any()
     monkeypatch.setattr(detect, "before_motion", lambda out, th: np.zeros(out.mean.shape[:2], dtype=bool))

@@ -696,7 +696,6 @@ def test_unseen_notch_flows_are_not_taken_for_a_fault():
     isolate.CONFIRM_CALIBRATE) no fault fits better than "none", so the alarm would not stand."""
     from sam import P
     from fdi.detect import Thresholds
-    from fdi.ukf import preset
 
     nominal = load_plant().vector()
     nominal[P.m_L] = 50.0
@@ -706,7 +705,7 @@ def test_unseen_notch_flows_are_not_taken_for_a_fault():
     t = np.arange(int(7.0 / DT) + 1) * DT
     u = np.where(t < 1.0, 0.0, np.where(t < 4.0, 2.5, np.where(t < 6.0, 0.0, -3.0)))
     runs = simulate_runs(truth[None], u, DT, seed=11, position="x", nominal=load_plant().vector()[None])
-    out = run_filter(runs.inp, preset(Thresholds.shipped().filter))
+    out = run_filter(runs.inp, FilterConfig())
     k0, k1 = np.array([int(5.8 / DT)]), np.array([int(7.0 / DT)])
     ref = iso.run_reference(out, np.array([0]), k0 + 1)
 
@@ -733,7 +732,6 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     from dataclasses import replace
 
     from fdi.detect import Thresholds, detector_statistics, diagnose, statistics
-    from fdi.ukf import preset
 
     shipped = Thresholds.shipped()
     th = replace(shipped, drift=0.0, long_stroke_s=None, h={k: v / 20 for k, v in shipped.h.items()},
@@ -743,7 +741,7 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     u = input_signal("sine", t, amplitude=3.0, frequency=0.25)
     leak = np.stack([np.zeros(len(t)), profile("step", lpm(1.0), t, t0=6.0)])
     runs = simulate_runs(np.tile(p, (2, 1)), u, DT, faults={"K_extA": leak}, seed=5)
-    out = run_filter(runs.inp, preset(th.filter))
+    out = run_filter(runs.inp, FilterConfig())
     stats = statistics(out, th)
     healthy = diagnose(out, th, 0, stats)
     assert healthy.status == "healthy"

@@ -56,15 +56,14 @@ def test_the_trigger_runs_only_with_its_threshold_and_the_likelihood_bank():
     from sam import load_plant
 
     from fdi.montecarlo import make_batch
-    from fdi.ukf import preset, run_filter
+    from fdi.ukf import run_filter
 
     runs = make_batch(load_plant(), 1, 7, fault=None, size=0.0, duration=2.0, onset=1.0)
     th = Thresholds.shipped()
-    out = run_filter(runs.inp, preset(th.filter))
+    out = run_filter(runs.inp, FilterConfig())
     old = replace(th, h={k: v for k, v in th.h.items() if k in HYPOTHESES})
     assert set(statistics(out, old)) == set(HYPOTHESES)
     assert set(statistics(out, replace(old, h={**old.h, NOTCH_TRIGGER: 3.0}))) == set(HYPOTHESES) | {NOTCH_TRIGGER}
-    assert set(statistics(out, replace(old, h={**old.h, NOTCH_TRIGGER: 3.0}, isolation="signature"))) == set(HYPOTHESES)
 
 
 def test_thresholds_file_notch_entry_is_validated(tmp_path):
@@ -96,14 +95,14 @@ def test_an_offset_the_notch_states_absorb_is_found_by_the_trigger():
     from fdi.detect import diagnose, first_alarm
     from fdi.montecarlo import make_batch
     from fdi.tune import draw_onsets
-    from fdi.ukf import preset, run_filter
+    from fdi.ukf import run_filter
 
     n, seed, b = 21, 500132, 12
     runs = make_batch(load_plant(), n, seed, fault="offset", size=-0.01, duration=4.0,
                       onset=draw_onsets(n, seed), position_sensor="encoder", inputs="standard")
     k0 = int(runs.truth["k_onset"][b])
     th = Thresholds.shipped()
-    out = run_filter(runs.inp, preset(th.filter))
+    out = run_filter(runs.inp, FilterConfig())
     st = statistics(out, th)
     second = k0 + 1000
     cusum_first = [int(first_alarm(st[h][b:b + 1], th.h[h])[0]) for h in HYPOTHESES]

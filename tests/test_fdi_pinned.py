@@ -153,7 +153,7 @@ def test_reference_baseline_skips_what_the_pinned_reference_hides(monkeypatch):
     from sam import Recording
     from fdi import replay as replay_module
     from fdi.detect import PARAMS
-    from fdi.ukf import K_PER_LPM, leak_lpm, preset
+    from fdi.ukf import K_PER_LPM, FilterConfig, leak_lpm
 
     th = Thresholds.shipped()
     j = PARAMS["K_extA"]
@@ -169,7 +169,7 @@ def test_reference_baseline_skips_what_the_pinned_reference_hides(monkeypatch):
     inp = out.inp
     rec = Recording(out.t, {"u": inp.u[0], "pA": inp.pA[0], "pB": inp.pB[0], "theta": inp.pos[0]})
     monkeypatch.setattr(replay_module, "run_filter", creeping_filter)
-    base = replay_module.reference_baseline(rec, load_plant(), th, preset(th.filter))[0]
+    base = replay_module.reference_baseline(rec, load_plant(), th, FilterConfig())[0]
     assert abs(leak_lpm(base[k])) < 0.05  # the second half would give 0.5
 
 

@@ -14,7 +14,7 @@ import pytest
 
 from fdi import rates, tune
 from fdi.montecarlo import LEAKS, leak_flow_lpm, make_batch
-from fdi.detect import Thresholds
+from fdi.detect import SHIPPED_THRESHOLDS, Thresholds
 from sam import UserError, load_plant
 from samfdi.cli import build_parser, main
 
@@ -85,8 +85,9 @@ def test_resume_refuses_a_folder_made_with_other_settings(tmp_path, calls, capsy
     err = capsys.readouterr().err.strip()
     assert str(out) in err and f"--runs {N_RUNS} there, 40 now" in err and "another --out" in err
     assert len(err.splitlines()) == 1
-    legacy = Path(__file__).parents[1] / "scenarios" / "faults" / "thresholds_legacy.toml"
-    assert _tune(out, "--thresholds", str(legacy)) == 2
+    other = tmp_path / "other.toml"
+    other.write_text(SHIPPED_THRESHOLDS.read_text().replace("drift = 1.0", "drift = 1.5"))
+    assert _tune(out, "--thresholds", str(other)) == 2
     assert "other thresholds (--thresholds;" in capsys.readouterr().err
     assert len(calls) == n_jobs  # nothing computed by the refused runs
 
