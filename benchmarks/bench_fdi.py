@@ -22,7 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from sam import load_plant  # noqa: E402
 from fdi.montecarlo import make_batch  # noqa: E402
 from fdi.synth import input_signal, lpm, profile, simulate_runs  # noqa: E402
-from fdi.ukf import POS_THETA, FilterConfig, initial_mean, noise_vectors, run_filter, state_scale  # noqa: E402
+from fdi import POS_THETA, FilterConfig, run_filter  # noqa: E402
+from fdi.filter import initial_mean  # noqa: E402
 
 
 def main() -> None:
@@ -38,7 +39,7 @@ def main() -> None:
     from test_fdi_ukf import _filterpy_reference
     cfg = FilterConfig()
     z0 = initial_mean(runs.inp, cfg)
-    P0 = np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None].copy()
+    P0 = np.diag((cfg.noise_vectors()[1] / cfg.state_scale()) ** 2)[None].copy()
     n_ref = 400  # the plain loop is slow: time 0.4 s and scale
     from dataclasses import replace
     short = replace(runs.inp, u=runs.inp.u[:, :n_ref], pA=runs.inp.pA[:, :n_ref], pB=runs.inp.pB[:, :n_ref],

@@ -29,7 +29,8 @@ from sam import load_plant  # noqa: E402
 from fdi import tune  # noqa: E402
 from fdi.detect import Thresholds  # noqa: E402
 from fdi.montecarlo import make_batch  # noqa: E402
-from fdi.ukf import FilterConfig, initial_mean, noise_vectors, state_scale  # noqa: E402
+from fdi import FilterConfig  # noqa: E402
+from fdi.filter import initial_mean  # noqa: E402
 
 RUN_S = 4.0  #: the issue's run length [s]
 N_HEALTHY = 230  #: the healthy runs of docs/fdi.md's tune (`--runs 230`)
@@ -54,7 +55,7 @@ def filterpy_seconds_per_run(plant, th: Thresholds, n_ref: int = 400) -> float:
     runs = make_batch(plant, 1, 1000, duration=RUN_S, position_sensor=th.position_sensor)
     cfg = FilterConfig()
     z0 = initial_mean(runs.inp, cfg)
-    P0 = np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None].copy()
+    P0 = np.diag((cfg.noise_vectors()[1] / cfg.state_scale()) ** 2)[None].copy()
     short = replace(runs.inp, **{k: getattr(runs.inp, k)[:, :n_ref] for k in ("u", "pA", "pB", "pos")})
     t0 = time.perf_counter()
     _filterpy_reference(short, cfg, z0, P0)

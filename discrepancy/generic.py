@@ -1,7 +1,7 @@
 """The generic route: estimate unknown inputs, sparse-regress them on physical features.
 
 1. Unknown-input estimate (default, ``estimator="ukf"``): the augmented UKF of
-   :mod:`fdi.ukf` (sigma points through ``sam.step_batch``, the calibrated plant)
+   :mod:`fdi` (sigma points through ``sam.step_batch``, the calibrated plant)
    with random-walk states for a disturbance flow into chamber A (Q_dA), into
    chamber B (Q_dB) and a disturbance force on the piston (F_d); see
    :mod:`discrepancy.unknown_input`.

@@ -1,6 +1,6 @@
-"""Unknown-input estimation for the generic route: the UKF of :mod:`fdi.ukf` with disturbance states.
+"""Unknown-input estimation for the generic route: the UKF of :mod:`fdi` with disturbance states.
 
-The filter (``fdi.ukf.run_filter``, sigma points through ``sam.step_batch``, the
+The filter (``fdi.run_filter``, sigma points through ``sam.step_batch``, the
 calibrated plant vector) estimates three unknown inputs as random-walk states:
 a disturbance flow into chamber A (``Q_dA``) and B (``Q_dB``) [m^3/s] and a
 disturbance force on the piston (``F_d``) [N]. The leak-fault and offset states
@@ -23,7 +23,7 @@ the simulation-error re-fit sets the final value. The regression features are th
 through the same time-varying low-pass
 (:func:`lag_like_estimate`) rather than the estimate being shifted or smoothed:
 a true RTS smoother would need the filter's cross-time covariances, which
-``fdi.ukf`` does not return.
+``fdi.run_filter`` does not return.
 
 Calibration nuisance. The plant vector passed in is already calibrated on the
 recording, and the calibration absorbs part of any missing flow (a leak out of A
@@ -43,7 +43,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from fdi.ukf import DISTURBANCE_STATES, FilterConfig, FilterInput, POS_THETA, run_filter
+from fdi import (
+    POS_THETA, CalibrationStates, Constraints, FilterConfig, FilterInput, Sensors, UnknownInputStates, run_filter,
+)
 from sam import P, S
 from sam.dynamics import N_DERIVED, N_STATES, derive, rhs
 from sam.geometry import joint_angle
@@ -54,9 +56,9 @@ from .data import Prepared
 TARGETS = {"Q_dA": "m^3/s", "Q_dB": "m^3/s", "F_d": "N"}
 #: Filter state of each unknown input, and the model-state column it drives (dp_A/dt, dp_B/dt, dv/dt).
 STATE_COL = {"Q_dA": S.p_A, "Q_dB": S.p_B, "F_d": S.v}
-#: Fault states of the filter held fixed (index in fdi.ukf.STATE_NAMES): K_int, K_extA, K_extB, offset.
-#: The calibrated offset is in the plant vector; a free leak state would take a chamber flow.
-PINNED_STATES = (7, 8, 9, 10)
+#: Fault states of the filter held fixed (fdi.STATE_NAMES). The calibrated offset is in the plant
+#: vector; a free leak state would take a chamber flow.
+PINNED_STATES = ("K_int", "K_extA", "K_extB", "offset")
 #: Prior std factor of a pinned state (tiny, not zero: the sigma-point covariance must stay positive definite).
 PINNED_PRIOR = 1e-6
 #: Finite-difference steps of the model's sensitivity to each unknown input (SI; far below any term fitted).
@@ -89,26 +91,23 @@ class UnknownInputs:
 #: defaults (tuned for fault detection, and changed between sessions): no calibration states (the plant
 #: vector passed in is already calibrated; a random-walk notch flow or B_eff would trade off with Q_dA,
 #: Q_dB), plain mean projection of the (pinned) leak states, and the 2e-5 rad encoder noise floor.
-ROUTE_FILTER = dict(calibrate=(), calib_noise=(), constraint="project", theta_noise_floor=2e-5)
+ROUTE_FILTER = dict(calibration=CalibrationStates(states=()), constraints=Constraints(projection="leak"),
+                    sensors=Sensors(theta_noise_floor=2e-5))
 
 
 def filter_config(base: FilterConfig | None = None) -> FilterConfig:
     """The fdi filter with Q_dA, Q_dB as unknown-input states and the fault states pinned.
 
-    F_d is already a state of the filter (its walk ``q[11]``, 1e4 N/sqrt(s) by default)."""
+    F_d is already a state of the filter (its walk ``process_noise["F_d"]``, 1e4 N/sqrt(s) by default)."""
     base = base or FilterConfig().with_(**ROUTE_FILTER)
-    q, p0 = list(base.q), list(base.p0)
-    for i in PINNED_STATES:
-        q[i] = 0.0
-        p0[i] = PINNED_PRIOR * p0[i]
-    return base.with_(q=tuple(q), p0=tuple(p0), disturb=("Q_dA", "Q_dB"))
+    return (base.with_process_noise(**{s: 0.0 for s in PINNED_STATES})
+            .with_initial_sd(**{s: PINNED_PRIOR * base.initial_sd[s] for s in PINNED_STATES})
+            .with_(unknown_inputs=UnknownInputStates(states=("Q_dA", "Q_dB"))))
 
 
 def _walk_density(cfg: FilterConfig) -> dict[str, float]:
-    over = {name: q_ for name, _, q_ in cfg.disturb_noise}
-    return {"Q_dA": over.get("Q_dA", DISTURBANCE_STATES["Q_dA"][2]),
-            "Q_dB": over.get("Q_dB", DISTURBANCE_STATES["Q_dB"][2]),
-            "F_d": float(cfg.q[11])}
+    noise = cfg.unknown_inputs.noise
+    return {"Q_dA": noise["Q_dA"][1], "Q_dB": noise["Q_dB"][1], "F_d": float(cfg.process_noise["F_d"])}
 
 
 def filter_input(data: Prepared, params: np.ndarray) -> FilterInput:

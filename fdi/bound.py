@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import isolate
-from .ukf import FilterOutput
+from .filter import FilterOutput
 
 #: The bank's hypotheses, "none" first: the evidence columns.
 HYPOTHESES = tuple(isolate.BANK)

@@ -1,6 +1,6 @@
 """Calibration from a healthy reference recording of the same machine.
 
-The filter's calibration states (:attr:`fdi.ukf.FilterConfig.calibrate`) learn the relative
+The filter's calibration states (:attr:`fdi.config.CalibrationStates.states`) learn the relative
 error of the valve's notch flows and of the bulk modulus on every recording, starting from
 their priors (2 % and 10 %). A healthy reference recording of the same machine learns them
 before any fault can hide in them: :func:`learn` reads them at the reference's last sample,
@@ -18,7 +18,8 @@ import numpy as np
 
 from sam import P
 
-from .ukf import FilterConfig, FilterInput, FilterOutput, state_names
+from .config import FilterConfig
+from .filter import FilterInput, FilterOutput
 
 #: Calibration states carried over: properties of the machine, not of the run. The load mass
 #: is not one: another recording may lift another load.
@@ -50,8 +51,8 @@ class Calibration:
 def learn(out: FilterOutput, cfg: FilterConfig) -> Calibration:
     """The machine states of :data:`MACHINE_STATES` that ``cfg`` estimates, read from every run
     of ``out`` (a filter run of ``cfg`` over healthy recordings) at its last sample."""
-    names = [n for n in cfg.calibrate if n in MACHINE_STATES]
-    j = {n: state_names(cfg).index(f"c_{n}") for n in names}
+    names = [n for n in cfg.calibration.states if n in MACHINE_STATES]
+    j = {n: cfg.state_names.index(f"c_{n}") for n in names}
     return Calibration(factor={n: 1.0 + out.mean[:, -1, j[n]] for n in names},
                        sd={n: out.std[:, -1, j[n]].copy() for n in names})
 
@@ -64,13 +65,12 @@ def apply(inp: FilterInput, cfg: FilterConfig, cal: Calibration) -> tuple[Filter
     params = inp.params.copy()
     for name, f in cal.factor.items():
         params[:, P[name]] *= f
-    over = {name: (p0, q) for name, p0, q in cfg.calib_noise}
+    noise = dict(cfg.calibration.noise)
     for name, sd in cal.sd.items():
-        p0, q = over.get(name, (cfg.p0_calib, cfg.q_calib))
+        p0, q = cfg.calibration.prior(name)
         # a reference that taught little (stalled, short) leaves the prior as it was
-        over[name] = (min(max(SD_INFLATION * float(np.median(sd)), MIN_PRIOR_SD), p0), q)
-    noise = tuple((name, p0, q) for name, (p0, q) in over.items())
-    return replace(inp, params=params), cfg.with_(calib_noise=noise)
+        noise[name] = (min(max(SD_INFLATION * float(np.median(sd)), MIN_PRIOR_SD), p0), q)
+    return replace(inp, params=params), cfg.with_(calibration=replace(cfg.calibration, noise=noise))
 
 
 __all__ = ["Calibration", "MACHINE_STATES", "MIN_PRIOR_SD", "SD_INFLATION", "apply", "learn"]

@@ -43,7 +43,8 @@ from sam import P, S
 from sam.errors import did_you_mean
 
 from .strokes import after_long_segment, directions, first_motion, long_strokes
-from .ukf import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, I_X, N_AUG, FilterOutput, leak_lpm, near_end_stop, sample_step
+from .filter import FilterOutput, near_end_stop, sample_step
+from .states import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, I_X, N_AUG, leak_lpm
 
 #: Fault hypotheses and the state each one reads (sign: +1 above healthy, -1 below).
 HYPOTHESES = {
@@ -681,7 +682,7 @@ def uses_notch_trigger(out: FilterOutput, th: Thresholds) -> bool:
 
 def has_notch_states(out: FilterOutput) -> bool:
     """Whether the filter that made ``out`` estimates the notch flows (:data:`NOTCH_STATES`)."""
-    return all(n in out.config.calibrate for n in NOTCH_STATES)
+    return all(n in out.config.calibration.states for n in NOTCH_STATES)
 
 
 def notch_jump(out: FilterOutput, th: Thresholds, armed: np.ndarray, start=0) -> np.ndarray:
@@ -700,7 +701,7 @@ def notch_jump(out: FilterOutput, th: Thresholds, armed: np.ndarray, start=0) ->
     *when*: the likelihood bank names the fault (:func:`fdi.isolate.isolate`), or withdraws it."""
     dt = sample_step(out.t)
     w = max(1, int(round(th.notch_jump_window_s / dt)))
-    cols = [N_AUG + out.config.calibrate.index(n) for n in NOTCH_STATES]
+    cols = [N_AUG + out.config.calibration.states.index(n) for n in NOTCH_STATES]
     z, sd = out.mean[:, :, cols], out.std[:, :, cols]
     jump = np.zeros(out.mean.shape[:2])
     if out.mean.shape[1] > w:

@@ -71,14 +71,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .ukf import (
-    I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, K_PER_LPM, N_AUG, N_MODEL, SCALE, FilterConfig,
-    FilterOutput, n_states, param_layout, run_filter, sample_step, state_scale,
-)
+from .config import CalibrationStates, Constraints, FilterConfig, Guards, Sensors, UnknownInputStates
+from .filter import FilterOutput, run_filter, sample_step
+from .states import I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, K_PER_LPM, N_AUG, N_MODEL, SCALE, STATE_NAMES
 
 #: The filter whose calibration states learn the nuisance before the onset (docs/fdi-history.md,
 #: session 4: load mass, B_eff and the four notch flows); its fault states are held.
-REFERENCE = FilterConfig(theta_noise_floor=1e-4, calib_hold_after_s=None)
+REFERENCE = FilterConfig(sensors=Sensors(theta_noise_floor=1e-4), calibration=CalibrationStates(hold_after_s=None))
 #: Calibration states of the reference that the CONFIRMATION bank carries as uncertain constant
 #: states (in both its hypotheses, "none" too) instead of holding them at the reference's values
 #: (:func:`confirmation_bank`, :func:`decide`'s ``conf``). A notch the machine has not yet used
@@ -214,17 +213,15 @@ def confirm_evidence(th) -> float:
 def reference_config(base: FilterConfig = REFERENCE) -> FilterConfig:
     """The healthy reference: ``base`` with every fault parameter held at its healthy value
     (no process noise, prior std x HELD_P0_FACTOR)."""
-    q, p0 = list(base.q), list(base.p0)
-    for j in FAULT_IDX:
-        q[j] = 0.0
-        p0[j] *= HELD_P0_FACTOR
-    return base.with_(q=tuple(q), p0=tuple(p0))
+    faults = [STATE_NAMES[j] for j in FAULT_IDX]
+    return (base.with_process_noise(**{f: 0.0 for f in faults})
+            .with_initial_sd(**{f: base.initial_sd[f] * HELD_P0_FACTOR for f in faults}))
 
 
 def confirm_calibration(detect: FilterConfig) -> tuple:
     """The calibration states of ``detect`` that the confirmation bank keeps as uncertain
     constant states (:data:`CONFIRM_CALIBRATE`)."""
-    return tuple(name for name in CONFIRM_CALIBRATE if name in detect.calibrate)
+    return tuple(name for name in CONFIRM_CALIBRATE if name in detect.calibration.states)
 
 
 def bank_config(detect: FilterConfig = REFERENCE, kept: tuple = ()) -> FilterConfig:
@@ -233,15 +230,12 @@ def bank_config(detect: FilterConfig = REFERENCE, kept: tuple = ()) -> FilterCon
     values written into the parameter vector (``kept`` = (): every one held), fault parameters
     constant (q = 0; the free one gets a prior), no divergence resets (a wrong hypothesis must
     keep its large innovations)."""
-    q = list(detect.q[:N_AUG])
-    for j in FAULT_IDX:
-        q[j] = 0.0
-    return replace(FilterConfig(), q=tuple(q), p0=detect.p0[:N_AUG], pressure_noise=detect.pressure_noise,
-                   x_noise=detect.x_noise, theta_pulse=detect.theta_pulse,
-                   theta_noise_floor=detect.theta_noise_floor, alpha=detect.alpha, beta=detect.beta,
-                   kappa=detect.kappa, calibrate=tuple(kept), q_calib=0.0,
-                   calib_noise=tuple((name, p0, 0.0) for name, p0, _ in detect.calib_noise if name in kept),
-                   disturb=(), freeze_calib_s=None, constraint="project", clip_leaks=True, nis_factor=0.0)
+    const = {name: (p0, 0.0) for name, (p0, _) in detect.calibration.noise.items() if name in kept}
+    return FilterConfig(
+        process_noise={**detect.process_noise, **{STATE_NAMES[j]: 0.0 for j in FAULT_IDX}},
+        initial_sd=dict(detect.initial_sd), sigma_points=detect.sigma_points, sensors=detect.sensors,
+        calibration=CalibrationStates(states=tuple(kept), walk=0.0, noise=const), unknown_inputs=UnknownInputStates(),
+        constraints=Constraints(projection="leak"), guards=Guards(nis_factor=0.0))
 
 
 def earliest_decision(k_alarm, k0, dt: float):
@@ -286,10 +280,11 @@ def run_reference(out: FilterOutput, rows: np.ndarray, k_end: np.ndarray) -> Fil
     L = int(max(1, np.max(k_end)))
     seg = _rows(inp, rows, np.zeros(len(rows), dtype=np.int64), np.minimum(k_end, inp.u.shape[1]), L)
     sub = replace(inp, params=inp.params[rows], **seg)
-    cfg = reference_config().with_(calib_hold_after_s=out.config.calib_hold_after_s,
-                                   calib_hold_band_V=out.config.calib_hold_band_V)
+    base = reference_config()
+    cfg = base.with_(calibration=replace(base.calibration, hold_after_s=out.config.calibration.hold_after_s),
+                     hold_band_V=out.config.hold_band_V)
     # the fault states are known constants here: no sigma points for them (29 instead of 37)
-    held = np.zeros((len(rows), n_states(cfg)), dtype=bool)
+    held = np.zeros((len(rows), cfg.n_states), dtype=bool)
     held[:, list(FAULT_IDX)] = True
     return run_filter(sub, cfg, n_steps=np.minimum(k_end, inp.u.shape[1]), held=held)
 
@@ -463,9 +458,10 @@ def seed_from(ref: FilterOutput, inp, rows: np.ndarray, k0: np.ndarray, ref_rows
     (n, len(P)) of runs ``rows`` with ref's calibration values written in (but those ``kept`` as
     states, :func:`bank_config`), and the scaled means and diagonal variances (n, N_AUG +
     len(kept)) of its first N_AUG states and the kept ones."""
-    cols, rel = param_layout(ref.config)
-    idx = np.r_[np.arange(N_AUG), [N_AUG + ref.config.calibrate.index(c) for c in kept]].astype(np.int64)
-    sc = state_scale(ref.config)[idx]
+    cols, rel = ref.config.param_layout()
+    calibrated = ref.config.calibration.states
+    idx = np.r_[np.arange(N_AUG), [N_AUG + calibrated.index(c) for c in kept]].astype(np.int64)
+    sc = ref.config.state_scale()[idx]
     n = len(rows)
     params = np.empty((n, inp.params.shape[1]))
     z0 = np.empty((n, len(idx)))
@@ -474,7 +470,7 @@ def seed_from(ref: FilterOutput, inp, rows: np.ndarray, k0: np.ndarray, ref_rows
         mean = ref.mean[ref_rows[i], ka]
         params[i] = inp.params[b]
         for a in range(len(cols)):  # calibration states -> the parameter vector
-            if rel[a] and ref.config.calibrate[a - (N_AUG - N_MODEL)] not in kept:
+            if rel[a] and calibrated[a - (N_AUG - N_MODEL)] not in kept:
                 params[i, cols[a]] = inp.params[b, cols[a]] * (1.0 + max(mean[N_MODEL + a], -0.95))
         z0[i] = mean[idx] / sc
         var[i] = (ref.std[ref_rows[i], ka, idx] / sc) ** 2
@@ -493,7 +489,7 @@ def _run_hypotheses(inp, cfg: FilterConfig, rows, k0, k1, params, z0, var, names
     ns = z0.shape[1]
     frees = [[free_states(h) for h in nm] for nm in names]  # (n, H) tuples of state indices
     L = int(max(1, (k1 - k0).max()))
-    sc = state_scale(cfg)
+    sc = cfg.state_scale()
     seg = _rows(inp, rows, k0, k1, L)
     P0 = np.zeros((n, H, ns, ns))
     held = np.zeros((n, H, ns), dtype=bool)  # the fault states not free: known constants
@@ -539,7 +535,7 @@ def _run_hypotheses(inp, cfg: FilterConfig, rows, k0, k1, params, z0, var, names
 
 
 def run_pairs(out: FilterOutput, ref: FilterOutput, first: BankResult, rows: np.ndarray, k1: np.ndarray,
-              best: list, calibrate: bool = False) -> BankResult:
+              best: list) -> BankResult:
     """Several-faults stage of runs ``rows``: every single fault and every pair (:data:`MULTI`)
     over [first's window end, k1[i]), each run restarted from the filter of its best single
     fault best[i] in the stage-1 bank ``first`` at that bank's last sample (model states:
@@ -549,36 +545,22 @@ def run_pairs(out: FilterOutput, ref: FilterOutput, first: BankResult, rows: np.
     "no fault" from the healthy samples and then needs a second parameter to follow the step,
     which a pair has (measured: +35 to +140 nats for a pair on a single 0.5 L/min step,
     nominal plant, bank from 0.25 s before the onset; -0.1 to -50 nats after the restart).
-    ``calibrate``: the filters of :func:`pair_config` (calibration as constant states, 1.8x
-    the cost; an option, see its docstring) instead of the bank's (calibration held at the
-    reference's values). ONE run_filter call (B = runs x 10)."""
-    det = ref.config
+    ONE run_filter call (B = runs x 10)."""
     hs = [first.hyps(i).index(b) for i, b in enumerate(best)]
     ks = first.k0 + first.n_valid
-    if not calibrate:
-        z0 = np.stack([first.z_last[i, h] for i, h in enumerate(hs)])
-        var = np.stack([first.var_last[i, h] for i, h in enumerate(hs)])
-        params = np.stack([first.params[i, h] for i, h in enumerate(hs)])
-        z0[:, list(FAULT_IDX)] = first.z0[:, list(FAULT_IDX)]  # leaks and offset restart at healthy
-        return _run_hypotheses(out.inp, bank_config(det), rows, ks, np.maximum(k1, ks + 1), params, z0,
-                               var, [MULTI] * len(rows), False)
-    cfg = pair_config(det)
-    # the reference's calibration at the bank's start, as in the bank
-    z0, var = calibrated_seed(ref, np.arange(len(rows)), first.k0)
-    for i, h in enumerate(hs):
-        z0[i, :N_AUG] = first.z_last[i, h, :N_AUG]
-        var[i, :N_AUG] = first.var_last[i, h, :N_AUG]
-    z0[:, list(FAULT_IDX)] = first.z0[:, list(FAULT_IDX)]
-    params = out.inp.params[rows]  # the calibration is a state here
-    return _run_hypotheses(out.inp, cfg, rows, ks, np.maximum(k1, ks + 1), params, z0, var,
-                           [MULTI] * len(rows), False)
+    z0 = np.stack([first.z_last[i, h] for i, h in enumerate(hs)])
+    var = np.stack([first.var_last[i, h] for i, h in enumerate(hs)])
+    params = np.stack([first.params[i, h] for i, h in enumerate(hs)])
+    z0[:, list(FAULT_IDX)] = first.z0[:, list(FAULT_IDX)]  # leaks and offset restart at healthy
+    return _run_hypotheses(out.inp, bank_config(ref.config), rows, ks, np.maximum(k1, ks + 1), params, z0,
+                           var, [MULTI] * len(rows), False)
 
 
 def calibrated_seed(ref: FilterOutput, ref_rows: np.ndarray, k: np.ndarray) -> tuple:
     """Start of :func:`pair_config` filters from row ref_rows[i] of the reference ``ref`` at
     sample k[i]: scaled means and diagonal variances (n, N_AUG + its calibration states)."""
-    nc = len(ref.config.calibrate)
-    sc = state_scale(pair_config(ref.config))
+    nc = len(ref.config.calibration.states)
+    sc = pair_config(ref.config).state_scale()
     z0 = np.stack([ref.mean[r, int(ki), :N_AUG + nc] for r, ki in zip(ref_rows, k)]) / sc
     var = (np.stack([ref.std[r, int(ki), :N_AUG + nc] for r, ki in zip(ref_rows, k)]) / sc) ** 2
     return z0, var
@@ -596,18 +578,12 @@ def run_bank_calibrated(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, 
 
 
 def pair_config(detect: FilterConfig = REFERENCE) -> FilterConfig:
-    """The several-faults filters of ``run_pairs(calibrate=True)`` (an option, not the
-    default: 1.8x the cost, replay 8x instead of 12x real time at load 11, and on the shipped
-    scenarios it trades the spurious offset+ 0.91 % (rejected by MIN_PAIR_SIZE) for a
-    K_extB 0.15 L/min that is not): the bank's (:func:`bank_config`) plus the reference's
-    calibration states as CONSTANTS (no random walk), started from the reference's values and
-    variances. A late onset estimate lets the reference's calibration absorb part of the fault
-    (its fault states are held); a constant calibration state re-learns that in every
-    hypothesis alike, where without it a pair's second parameter absorbs it (measured on the
-    shipped int_0p5lpm_step scenario, bank start 1.8 s after the onset: K_int + offset+ ahead of
-    K_int alone by 5429 nats)."""
-    return replace(bank_config(detect), calibrate=detect.calibrate, q_calib=0.0,
-                   calib_noise=tuple((name, p0, 0.0) for name, p0, _ in detect.calib_noise))
+    """The bank's filters (:func:`bank_config`) with every calibration state of ``detect`` as an
+    uncertain CONSTANT state (no random walk), started from the reference's values and
+    variances: what the bound of :mod:`fdi.bound` runs."""
+    bank = bank_config(detect)
+    const = {name: (p0, 0.0) for name, (p0, _) in detect.calibration.noise.items()}
+    return bank.with_(calibration=replace(bank.calibration, states=detect.calibration.states, noise=const))
 
 
 @dataclass

@@ -6,6 +6,7 @@ anything else looks at the recording.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,10 +20,9 @@ from . import calibration
 from .detect import (
     HYPOTHESES, MIN_TESTED_S, PARAMS, Diagnosis, Thresholds, detector_statistics, diagnose, held, residuals, statistics,
 )
-from .ukf import (
-    POS_THETA, POS_X, STATE_NAMES, FilterConfig, FilterInput, FilterOutput, leak_lpm,
-    model_substeps, run_filter,
-)
+from .config import FilterConfig
+from .filter import FilterInput, FilterOutput, model_substeps, run_filter
+from .states import K_PER_LPM, POS_THETA, POS_X, STATE_NAMES, leak_lpm
 
 SENSOR_RANGE_PA = (0.0, 25e6)  #: pressure sensors of the SAM
 RANGE_MARGIN_PA = 0.5e6  #: noise around the range ends that is still accepted
@@ -169,7 +169,6 @@ def check_observable(inp: FilterInput, plant: Plant, name: str = "plant", record
     """
     T = min(inp.u.shape[1], int(2.0 / inp.dt) + 1)
     p0 = plant.vector()
-    from .ukf import K_PER_LPM
     rows = [p0.copy()]
     sizes = {"K_int": K_PER_LPM, "K_extA": K_PER_LPM, "K_extB": K_PER_LPM, "offset": 0.02}
     for f, v in sizes.items():
@@ -267,7 +266,7 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None,
     if cal is not None:
         inp, cfg = calibration.apply(inp, cfg, cal)
     out = run_filter(inp, cfg)
-    out.t = rec.t - rec.t[0]
+    out = replace(out, t=rec.t - rec.t[0])
     stats = statistics(out, thresholds, baseline)
     diag = diagnose(out, thresholds, 0, stats, baseline)
     stats = detector_statistics(out, thresholds, diag, baseline)  # restarted after withdrawn alarms

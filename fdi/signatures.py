@@ -12,7 +12,8 @@ from sam import P, Plant
 
 from .detect import Thresholds, residuals
 from .synth import lpm, profile, simulate_runs
-from .ukf import leak_lpm, run_filter
+from .filter import run_filter
+from .states import leak_lpm
 
 FAULTS = {"K_int": ("K_int", lpm(1.0)), "K_extA": ("K_extA", lpm(1.0)), "K_extB": ("K_extB", lpm(1.0)),
           "offset+": ("offset", 0.02), "offset-": ("offset", -0.02)}

@@ -16,12 +16,14 @@ from sam.hydraulics import leak_coefficient
 from sam.measurement import quantise_angle
 from sam.geometry import joint_angle
 
-from .ukf import POS_THETA, POS_X, FilterConfig, FilterInput
+from .config import Sensors
+from .filter import FilterInput
+from .states import POS_THETA, POS_X
 
 #: the simulated position channel of each position sensor (fdi.detect.SHIPPED_BY_SENSOR): the
 #: SAM's quantised encoder, or x from a linear transducer with the white noise the filter
-#: assumes for one (FilterConfig.x_noise, 10 um)
-POSITION_SENSORS = {"encoder": {"position": "theta"}, "linear": {"position": "x", "x_noise": FilterConfig.x_noise}}
+#: assumes for one (fdi.config.Sensors.x_noise, 10 um)
+POSITION_SENSORS = {"encoder": {"position": "theta"}, "linear": {"position": "x", "x_noise": Sensors.x_noise}}
 
 FAULT_NAMES = ("K_int", "K_extA", "K_extB", "offset")
 

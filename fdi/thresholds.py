@@ -44,8 +44,10 @@ from .detect import (HYPOTHESES, MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, NOTCH_TRIGG
                      change_spread, cusum_drift, has_notch_states, held, long_stroke_mask, notch_armed, notch_jump,
                      own_baseline, regimes)
 from .montecarlo import pool_context
+from .states import leak_lpm
 from .synth import POSITION_SENSORS, random_input, simulate_runs
-from .ukf import FilterConfig, run_filter
+from .config import FilterConfig
+from .filter import run_filter
 
 #: s: the studies simulate at SIM_DT and filter what a logger sampling every Thresholds.sample_dt_s
 #: (a multiple of SIM_DT) would have recorded
@@ -468,7 +470,6 @@ def to_toml(th: Thresholds) -> str:
 
 def describe(th: Thresholds) -> str:
     """A person-readable table of the thresholds."""
-    from .ukf import leak_lpm
 
     memory = "none" if th.memory_s is None else f"{th.memory_s:g} s"
     window = f"[{th.warmup_s:g}, {th.warmup_s + th.baseline_s:g}] s"

@@ -45,7 +45,8 @@ from . import calibration, isolate, rates
 from .detect import HYPOTHESES, Thresholds, alarm_judging, statistics
 from .montecarlo import LEAKS, LONG_CYCLES, leak_flow_lpm, make_batch, make_reference_batch, pool_context
 from .synth import POSITION_SENSORS
-from .ukf import FilterConfig, run_filter
+from .config import FilterConfig
+from .filter import run_filter
 
 FAULT_SIZES = {"K_int": (0.1, 0.25, 0.5, 1.0), "K_extA": (0.1, 0.25, 0.5, 1.0),
                "K_extB": (0.1, 0.25, 0.5, 1.0), "offset": (0.01, -0.01, 0.02, -0.02, 0.05)}

@@ -6,7 +6,7 @@ import pytest
 from fdi import bound, rates, tune
 from fdi.detect import Thresholds
 from fdi.montecarlo import make_batch
-from fdi.ukf import FilterConfig, run_filter
+from fdi import FilterConfig, run_filter
 from sam import load_plant
 
 

@@ -11,7 +11,7 @@ from sam import P, Recording, load_plant, write_recording
 from samfdi.cli import main
 from fdi import calibration
 from fdi.synth import input_signal, lpm, profile, simulate_runs
-from fdi.ukf import FilterConfig, run_filter
+from fdi import FilterConfig, run_filter
 
 DT = 1e-3
 #: the machine of these tests: its A->T notch passes 2 % less and its P->B notch 2 % more
@@ -52,7 +52,7 @@ def test_learn_recovers_the_machine_from_a_healthy_cycle():
 
 
 def test_apply_writes_the_factors_and_the_carried_priors():
-    from fdi.ukf import FilterInput, POS_X
+    from fdi import FilterInput, POS_X
 
     cfg = FilterConfig()
     p = load_plant().vector()[None]
@@ -64,15 +64,14 @@ def test_apply_writes_the_factors_and_the_carried_priors():
     assert inp2.params[0, P.B_eff] == pytest.approx(0.95 * p[0, P.B_eff])
     changed = np.flatnonzero(inp2.params[0] != p[0])
     assert set(changed) == {int(P.Q_N_PB), int(P.B_eff)} and inp.params[0, P.Q_N_PB] == p[0, P.Q_N_PB]
-    noise = {n: (p0, q) for n, p0, q in cfg2.calib_noise}
-    old = {n: (p0, q) for n, p0, q in cfg.calib_noise}
-    assert noise["Q_N_PB"] == (pytest.approx(calibration.SD_INFLATION * 0.004), cfg.q_calib)
+    noise, old = cfg2.calibration.noise, cfg.calibration.noise
+    assert noise["Q_N_PB"] == (pytest.approx(calibration.SD_INFLATION * 0.004), cfg.calibration.walk)
     assert noise["B_eff"] == (calibration.MIN_PRIOR_SD, old["B_eff"][1])  # floored; its own walk kept
     assert noise["m_L"] == old["m_L"]  # the load is not carried over
     # a reference that taught nothing (posterior = prior) leaves the prior as it was
     _, cfg3 = calibration.apply(inp, cfg, calibration.Calibration(factor={"Q_N_PA": np.array([1.0])},
-                                                                  sd={"Q_N_PA": np.array([cfg.p0_calib])}))
-    assert {n: p0 for n, p0, _ in cfg3.calib_noise}["Q_N_PA"] == cfg.p0_calib
+                                                                  sd={"Q_N_PA": np.array([cfg.calibration.initial_sd])}))
+    assert cfg3.calibration.prior("Q_N_PA")[0] == cfg.calibration.initial_sd
 
 
 def _isolated_within(d: dict, name: str, t_end: float) -> bool:

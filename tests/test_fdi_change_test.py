@@ -155,7 +155,7 @@ def test_the_cusum_memory_is_reported():
     from fdi.detect import diagnose
     from fdi.synth import input_signal, simulate_runs
     from fdi.thresholds import describe
-    from fdi.ukf import run_filter
+    from fdi import run_filter
     assert "memory 0.5 s" in describe(Thresholds.shipped())
     assert "memory none" in describe(Thresholds())
     t = np.arange(2501) * DT
@@ -177,7 +177,7 @@ def test_change_residual_spread_follows_the_weights():
     from sam import load_plant
     from fdi.detect import PARAMS, baseline_values, change_residuals, held
     from fdi.synth import input_signal, simulate_runs
-    from fdi.ukf import run_filter
+    from fdi import run_filter
     th = Thresholds.shipped()
     assert th.filter_sd_weight == {"K_int": 1.0, "K_extA": 0.0, "K_extB": 0.0, "offset": 1.0}
     assert Thresholds().sd_weight("K_extA") == 1.0
@@ -203,7 +203,7 @@ def test_restart_relearns_only_the_wandering_baselines():
     from sam import load_plant
     from fdi.detect import PARAMS, REBASE_PARAMS, REBASE_S, WANDERING, baseline_values, restarted_statistics, statistics
     from fdi.synth import input_signal, simulate_runs
-    from fdi.ukf import run_filter
+    from fdi import run_filter
     th = Thresholds.shipped()
     assert REBASE_PARAMS == WANDERING == ("K_int", "offset")
     t = np.arange(6001) * DT
@@ -277,7 +277,7 @@ def test_long_healthy_runs_stay_healthy():
     from fdi.detect import statistics
     from fdi.montecarlo import make_batch
     from fdi.tune import _bank_decisions
-    from fdi.ukf import FilterConfig, run_filter
+    from fdi import FilterConfig, run_filter
 
     th = Thresholds.shipped()
     assert th.run_length_s == 20.0 and th.memory_s is not None
@@ -324,7 +324,8 @@ def test_restarted_tests_relearn_the_baseline():
     from sam import load_plant
     from fdi.detect import restarted_statistics, statistics
     from fdi.synth import input_signal, simulate_runs
-    from fdi.ukf import I_KINT, K_PER_LPM, FilterConfig, run_filter
+    from fdi import K_PER_LPM, FilterConfig, run_filter
+    from fdi.states import I_KINT
 
     th = Thresholds.shipped()
     t = np.arange(5001) * DT
@@ -346,7 +347,7 @@ def test_reversal_after_a_long_steady_stroke_stays_healthy(tmp_path, seed):
     that does not reach the stop, then a retraction), replayed from the encoder: healthy. Until
     session 17 the filter's calibration states drifted along what a steady stroke leaves unseen
     (m_L +46 -> +154 %, B_eff -1 -> -14 %) and snapped back at the reversal, which the bank read
-    as K_int (all three seeds false-alarmed at 15.4-15.6 s); FilterConfig.calib_hold_after_s
+    as K_int (all three seeds false-alarmed at 15.4-15.6 s); CalibrationStates.hold_after_s
     stops their random walk inside long strokes, in the detecting filter and the bank's reference."""
     from dataclasses import replace
 
@@ -441,7 +442,7 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     from sam import load_plant
     from fdi import detect, tune
     from fdi.montecarlo import make_batch
-    from fdi.ukf import FilterConfig, run_filter
+    from fdi import FilterConfig, run_filter
 
     th = Thresholds.shipped()
     picks = {300001: 21, 300002: 18, 300004: 20}
@@ -472,7 +473,7 @@ def test_internal_leak_test_is_held_where_the_chamber_pressures_balance(monkeypa
     from fdi import detect
     from fdi.detect import BALANCE_MARGIN_PA, PARAMS, held, statistics
     from fdi.synth import lpm
-    from fdi.ukf import FilterConfig
+    from fdi import FilterConfig
 
     th = Thresholds.shipped()
     T = 8000

@@ -14,7 +14,7 @@ import pytest
 from sam import load_plant
 from fdi import isolate as iso
 from fdi.synth import input_signal, lpm, profile, simulate_runs
-from fdi.ukf import FilterConfig, K_PER_LPM, run_filter
+from fdi import FilterConfig, K_PER_LPM, run_filter
 
 DT = 1e-3
 ONSET_S = 2.0

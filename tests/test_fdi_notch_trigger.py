@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from fdi.detect import HYPOTHESES, NOTCH_STATES, NOTCH_TRIGGER, Thresholds, notch_jump, statistics
-from fdi.ukf import N_AUG, FilterConfig
+from fdi import FilterConfig
+from fdi.states import N_AUG
 
 DT = 1e-3
 
@@ -18,9 +19,9 @@ DT = 1e-3
 def _output(T: int, step_at: int, step: float, sd: float, state: str = "Q_N_AT"):
     """A filter output of one run whose only motion is a step of one notch-flow state."""
     cfg = FilterConfig()
-    n = N_AUG + len(cfg.calibrate)
+    n = N_AUG + len(cfg.calibration.states)
     mean = np.zeros((1, T, n))
-    mean[0, step_at:, N_AUG + cfg.calibrate.index(state)] = step
+    mean[0, step_at:, N_AUG + cfg.calibration.states.index(state)] = step
     return SimpleNamespace(t=np.arange(T) * DT, config=cfg, mean=mean, std=np.full((1, T, n), sd))
 
 
@@ -56,7 +57,7 @@ def test_the_trigger_runs_only_with_its_threshold_and_the_likelihood_bank():
     from sam import load_plant
 
     from fdi.montecarlo import make_batch
-    from fdi.ukf import run_filter
+    from fdi import run_filter
 
     runs = make_batch(load_plant(), 1, 7, fault=None, size=0.0, duration=2.0, onset=1.0)
     th = Thresholds.shipped()
@@ -95,7 +96,7 @@ def test_an_offset_the_notch_states_absorb_is_found_by_the_trigger():
     from fdi.detect import diagnose, first_alarm
     from fdi.montecarlo import make_batch
     from fdi.tune import draw_onsets
-    from fdi.ukf import run_filter
+    from fdi import run_filter
 
     n, seed, b = 21, 500132, 12
     runs = make_batch(load_plant(), n, seed, fault="offset", size=-0.01, duration=4.0,

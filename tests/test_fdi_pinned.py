@@ -15,7 +15,8 @@ from sam import P, load_plant
 from fdi.detect import (MIN_BASELINE_S, PARAMS, Thresholds, baseline_window, diagnose, held, held_on_stop,
                         pinned, resting_on_stop)
 from fdi.synth import simulate_runs
-from fdi.ukf import I_KEXTA, POS_X, FilterInput, FilterOutput, leak_lpm, run_filter
+from fdi import POS_X, FilterInput, FilterOutput, leak_lpm, run_filter
+from fdi.states import I_KEXTA
 
 DT = 1e-3
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
@@ -153,7 +154,7 @@ def test_reference_baseline_skips_what_the_pinned_reference_hides(monkeypatch):
     from sam import Recording
     from fdi import replay as replay_module
     from fdi.detect import PARAMS
-    from fdi.ukf import K_PER_LPM, FilterConfig, leak_lpm
+    from fdi import K_PER_LPM, FilterConfig, leak_lpm
 
     th = Thresholds.shipped()
     j = PARAMS["K_extA"]

@@ -14,7 +14,8 @@ from sam.scenario import load_scenario, run_scenario
 from fdi.detect import SHIPPED_BY_SENSOR, Thresholds
 from fdi.replay import detect_position_sensor, filter_input, replay
 from fdi.synth import POSITION_SENSORS, simulate_runs
-from fdi.ukf import I_X, POS_THETA, POS_X
+from fdi import POS_THETA, POS_X
+from fdi.states import I_X
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
 
@@ -58,7 +59,7 @@ def test_sensor_of_a_recording(recorded, cycle, linear_x):
         assert detect_position_sensor(_with_x(cycle, on_grid), p) == "encoder"
     for continuous in (recorded.truth["true_x"], linear_x):
         assert detect_position_sensor(_with_x(cycle, continuous), plant) == "linear"
-    # the filter's input says which, for its end-stop gain (fdi.ukf.FilterConfig.stop_learners)
+    # the filter's input says which, for its end-stop gain (fdi.config.StopRules.learners)
     assert filter_input(_with_x(cycle, linear_x), plant)[0].linear_position
     assert not filter_input(cycle, plant)[0].linear_position  # x computed from the encoder
     assert filter_input(cycle, plant, position_sensor="linear")[0].linear_position  # as the user says

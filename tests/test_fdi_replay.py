@@ -4,6 +4,7 @@ bad input; the CLI never shows a traceback."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ from samfdi.cli import main
 from fdi.detect import Thresholds, diagnose, statistics
 from fdi.montecarlo import make_batch
 from fdi.synth import input_signal, lpm, profile, simulate_runs
-from fdi.ukf import run_filter
+from fdi import run_filter
 
 DT = 1e-3
 
@@ -99,7 +100,7 @@ def test_sampling_rate_must_match_the_thresholds(leak_csv, tmp_path, capsys):
 
     from sam import read_recording
     import fdi
-    from fdi.ukf import model_substeps
+    from fdi.filter import model_substeps
     r = read_recording(leak_csv)
     half = Recording(r.t[::2], {k: v[::2] for k, v in r.signals.items()}, source="half.csv")
     write_recording(tmp_path / "half.csv", half)
@@ -428,9 +429,9 @@ def test_encoder_quantiser_convention_does_not_matter_for_a_large_leak(conventio
     fault = {"K_extA": np.tile(profile("step", lpm(1.0), t, t0=2.0), (3, 1))}
     r = simulate_runs(np.tile(p, (3, 1)), u, DT, faults=fault, seed=11, quantise=False)
     theta = r.inp.pos
-    r.inp.pos = (np.floor(theta / q) + 0.5) * q if convention == "floor+0.5" else np.round(theta / q) * q
+    inp = replace(r.inp, pos=(np.floor(theta / q) + 0.5) * q if convention == "floor+0.5" else np.round(theta / q) * q)
     th = Thresholds.shipped()
-    out = run_filter(r.inp)
+    out = run_filter(inp)
     st = statistics(out, th)
     for b in range(3):
         d = diagnose(out, th, b, st)

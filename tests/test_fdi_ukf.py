@@ -12,12 +12,20 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sam import P, load_plant, step_batch
-from fdi import ukf
-from fdi.synth import input_signal, lpm, profile, simulate_runs
-from fdi.ukf import (
-    N_MODEL, POS_THETA, SCALE, FilterConfig, initial_mean, measurement_variances, noise_vectors,
-    param_layout, run_filter, scaled_measurements, state_scale,
+from fdi import (
+    POS_THETA, POS_X, CalibrationStates, Constraints, FilterConfig, FilterInput, Guards, StopRules,
+    UnknownInputStates, leak_lpm, run_filter,
 )
+from fdi import sigma
+from fdi.filter import (
+    calibration_hold, initial_mean, measurement_variances, pressed_on_stop, random_walk_gates, scaled_measurements,
+    stop_gain_gate,
+)
+from fdi.states import I_FD, I_KEXTA, I_KEXTB, I_KINT, I_OFFSET, I_X, N_AUG, N_MODEL, N_READ, SCALE
+from fdi.synth import input_signal, lpm, profile, simulate_runs
+
+#: a plain UKF: no projection, no resets
+PLAIN = FilterConfig(constraints=Constraints(project_mean=False), guards=Guards(nis_factor=0.0))
 
 DT = 1e-3
 
@@ -37,8 +45,8 @@ def _filterpy_reference(inp, cfg, z0, P0, b=0, loglik=None, held=None):
     """A plain filterpy loop calling the model once per sigma point (scaled units); appends
     filterpy's per-step log-likelihood to ``loglik`` when given a list. ``held`` (n,) bool:
     filterpy's state is only the other states, the held ones are constants at z0."""
-    scale = state_scale(cfg)
-    cols, rel = param_layout(cfg)
+    scale = cfg.state_scale()
+    cols, rel = cfg.param_layout()
     n_full = len(scale)
     free = np.arange(n_full) if held is None else np.flatnonzero(~held)
     n = len(free)
@@ -54,7 +62,7 @@ def _filterpy_reference(inp, cfg, z0, P0, b=0, loglik=None, held=None):
         full = zs * scale
         prm = params.copy()
         vals = full[N_MODEL:].copy()
-        if cfg.clip_leaks:
+        if cfg.constraints.clip_leaks:
             vals[:3] = np.maximum(vals[:3], 0.0)
         # calibration states (the load mass): relative error of the nominal value
         vals = np.where(rel > 0, params[cols] * (1.0 + np.maximum(vals, -0.95)), vals)
@@ -72,11 +80,12 @@ def _filterpy_reference(inp, cfg, z0, P0, b=0, loglik=None, held=None):
         c = np.clip((L1**2 + L2**2 - (x + L3) ** 2) / (2 * L1 * L2), -1, 1)
         return np.array([zs[0], zs[1], math.acos(c) / 1e-3])
 
-    pts = MerweScaledSigmaPoints(n, alpha=cfg.alpha, beta=cfg.beta, kappa=cfg.kappa)
+    sp = cfg.sigma_points
+    pts = MerweScaledSigmaPoints(n, alpha=sp.alpha, beta=sp.beta, kappa=sp.kappa)
     ukf = UnscentedKalmanFilter(dim_x=n, dim_z=3, dt=inp.dt, hx=hx, fx=fx, points=pts)
     ukf.x = z0[b][free].copy()
     ukf.P = P0[b][np.ix_(free, free)].copy()
-    ukf.Q = np.diag((noise_vectors(cfg)[0][free] * math.sqrt(inp.dt) / scale[free]) ** 2)
+    ukf.Q = np.diag((cfg.noise_vectors()[0][free] * math.sqrt(inp.dt) / scale[free]) ** 2)
     ukf.R = np.diag(measurement_variances(cfg, inp.pos_kind))
     y = scaled_measurements(inp)[b]
     T = inp.u.shape[1]
@@ -99,13 +108,13 @@ def test_batched_ukf_equals_filterpy(plant_vector):
     t = np.arange(401) * DT
     runs = _runs(plant_vector, T=401, faults={"K_extA": profile("step", lpm(1.0), t, t0=0.1)})
     assert runs.inp.pos_kind == POS_THETA
-    cfg = FilterConfig(project_mean=False, nis_factor=0.0)  # plain UKF: no projection, no resets
+    cfg = PLAIN
     z0 = initial_mean(runs.inp, cfg)
-    P0 = np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None].copy()
+    P0 = np.diag((cfg.noise_vectors()[1] / cfg.state_scale()) ** 2)[None].copy()
     out = run_filter(runs.inp, cfg, z0=z0, P0=P0)
     ref_x, ref_sd = _filterpy_reference(runs.inp, cfg, z0, P0)
-    ours_x = out.mean[0] / state_scale(cfg)
-    ours_sd = out.std[0] / state_scale(cfg)
+    ours_x = out.mean[0] / cfg.state_scale()
+    ours_sd = out.std[0] / cfg.state_scale()
     assert np.max(np.abs(ours_x - ref_x)) < 1e-9
     assert np.max(np.abs(ours_sd - ref_sd)) < 1e-9
     assert out.n_jitter[0] == 0 and out.n_cov_reset[0] == 0
@@ -117,32 +126,31 @@ def test_held_states_equal_filterpy_on_the_free_states(plant_vector):
     in fx and hx) to 1e-9, and the held states never move."""
     t = np.arange(301) * DT
     runs = _runs(plant_vector, T=301, faults={"K_int": profile("step", lpm(1.0), t, t0=0.1)}, B=2)
-    cfg = FilterConfig(project_mean=False, nis_factor=0.0, calibrate=(), constraint="project")
-    n = len(state_scale(cfg))
+    cfg = PLAIN.with_(calibration=CalibrationStates(states=()),
+                      constraints=Constraints(project_mean=False, projection="leak"))
+    n = cfg.n_states
     held = np.zeros((2, n), dtype=bool)
-    held[1, [ukf.I_KEXTA, ukf.I_KEXTB, ukf.I_OFFSET]] = True  # run 1: only K_int (and F_d) free
+    held[1, [I_KEXTA, I_KEXTB, I_OFFSET]] = True  # run 1: only K_int (and F_d) free
     z0 = initial_mean(runs.inp, cfg)
-    P0 = np.repeat(np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None], 2, axis=0)
+    P0 = np.repeat(np.diag((cfg.noise_vectors()[1] / cfg.state_scale()) ** 2)[None], 2, axis=0)
     P0[1][held[1], :] = 0.0
     P0[1][:, held[1]] = 0.0
     P0[1][held[1], held[1]] = 1e-12
-    q = np.array(cfg.q)
-    q[[ukf.I_KEXTA, ukf.I_KEXTB, ukf.I_OFFSET]] = 0.0
-    cfg = cfg.with_(q=tuple(q))
+    cfg = cfg.with_process_noise(K_extA=0.0, K_extB=0.0, offset=0.0)
     out = run_filter(runs.inp, cfg, z0=z0, P0=P0, held=held)
     for b in range(2):
         ref_x, ref_sd = _filterpy_reference(runs.inp, cfg, z0, P0, b=b, held=held[b])
-        ours = out.mean[b] / state_scale(cfg)
+        ours = out.mean[b] / cfg.state_scale()
         assert np.max(np.abs(ours - ref_x)) < 1e-9
-        sd = out.std[b] / state_scale(cfg)
+        sd = out.std[b] / cfg.state_scale()
         assert np.max(np.abs(sd[:, ~held[b]] - ref_sd[:, ~held[b]])) < 1e-9
     assert np.all(out.mean[1][:, held[1]] == out.mean[1][0, held[1]])
-    assert np.abs(out.mean[0, -1, ukf.I_KEXTA] - out.mean[0, 0, ukf.I_KEXTA]) > 0  # free in run 0
+    assert np.abs(out.mean[0, -1, I_KEXTA] - out.mean[0, 0, I_KEXTA]) > 0  # free in run 0
     with pytest.raises(ValueError, match="parameter states"):
         run_filter(runs.inp, cfg, held=np.ones((2, n), dtype=bool))
     with pytest.raises(ValueError, match="shape"):
         run_filter(runs.inp, cfg, held=held[:, :-1])
-    P0[1][ukf.I_KEXTA, 0] = P0[1][0, ukf.I_KEXTA] = 1e-6  # a held state correlated with p_A
+    P0[1][I_KEXTA, 0] = P0[1][0, I_KEXTA] = 1e-6  # a held state correlated with p_A
     with pytest.raises(ValueError, match="covariance"):
         run_filter(runs.inp, cfg, z0=z0, P0=P0, held=held)
 
@@ -152,9 +160,9 @@ def test_innovation_log_likelihood_equals_filterpy(plant_vector):
     filterpy's UnscentedKalmanFilter.log_likelihood of the same steps (scaled units)."""
     t = np.arange(301) * DT
     runs = _runs(plant_vector, T=301, faults={"K_int": profile("step", lpm(0.5), t, t0=0.1)})
-    cfg = FilterConfig(project_mean=False, nis_factor=0.0)
+    cfg = PLAIN
     z0 = initial_mean(runs.inp, cfg)
-    P0 = np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None].copy()
+    P0 = np.diag((cfg.noise_vectors()[1] / cfg.state_scale()) ** 2)[None].copy()
     out = run_filter(runs.inp, cfg, z0=z0, P0=P0)
     ref = []
     _filterpy_reference(runs.inp, cfg, z0, P0, loglik=ref)
@@ -171,7 +179,7 @@ def test_batch_of_filters_equals_one_at_a_time(plant_vector):
         one = replace(runs.inp, u=runs.inp.u[b:b + 1], pA=runs.inp.pA[b:b + 1], pB=runs.inp.pB[b:b + 1],
                       pos=runs.inp.pos[b:b + 1], params=runs.inp.params[b:b + 1])
         single = run_filter(one)
-        assert np.max(np.abs(single.mean[0] - all_out.mean[b]) / state_scale(all_out.config)) < 1e-9
+        assert np.max(np.abs(single.mean[0] - all_out.mean[b]) / all_out.config.state_scale()) < 1e-9
 
 
 def test_leaks_stay_non_negative_and_nan_gap_predicted_through(plant_vector):
@@ -199,57 +207,22 @@ def test_known_leak_size_estimated(plant_vector):
     t = np.arange(4001) * DT
     runs = _runs(plant_vector, T=4001, faults={"K_extA": profile("step", lpm(1.0), t, t0=1.0)})
     out = run_filter(runs.inp)
-    from fdi.ukf import leak_lpm
     est = leak_lpm(out.mean[0, 2500:, 8]).mean()
     assert est == pytest.approx(1.0, abs=0.15)
     assert leak_lpm(out.mean[0, 2500:, 7]).mean() < 0.15
     assert leak_lpm(out.mean[0, 2500:, 9]).mean() < 0.15
 
 
-def test_truncated_gaussian_constraint_moments():
-    """The "truncate" constraint: the leak's marginal becomes the truncated normal (mean
-    and variance), and a correlated state moves along its regression."""
-    from scipy.stats import truncnorm
-    from fdi.ukf import _truncate_leaks
-    n = 12
-    P = np.eye(n) * 0.5
-    P[8, 8] = 0.04
-    P[7, 7] = 0.01
-    P[10, 8] = P[8, 10] = 0.1  # offset correlated with K_extA
-    z = np.zeros(n)
-    z[8] = -0.1
-    z[7] = 0.3  # K_int far above its bound: (almost) untouched
-    z0, P0 = z.copy(), P.copy()
-    _truncate_leaks(z, P, True, 0.0)
-    s = 0.2
-    ref = truncnorm((0 - z0[8]) / s, np.inf, loc=z0[8], scale=s)
-    assert z[8] == pytest.approx(ref.mean(), rel=1e-9)
-    assert P[8, 8] == pytest.approx(ref.var(), rel=1e-9)
-    assert z[10] - z0[10] == pytest.approx(P0[10, 8] / P0[8, 8] * (ref.mean() - z0[8]), rel=1e-9)
-    assert abs(z[7] - z0[7]) < 0.01 and np.all(np.linalg.eigvalsh(P) > 0)
-
-
-@pytest.mark.parametrize("constraint", ["project_joint", "truncate"])
-def test_constraint_options_keep_leaks_non_negative(plant_vector, constraint):
+@pytest.mark.parametrize("projection", ["joint", "leak"])
+def test_projections_keep_leaks_non_negative(plant_vector, projection):
     runs = _runs(plant_vector, T=1501, seed=4)
-    cfg = FilterConfig(constraint=constraint, calibrate=("m_L",))
+    cfg = FilterConfig(constraints=Constraints(projection=projection), calibration=CalibrationStates(states=("m_L",)))
     out = run_filter(runs.inp, cfg)
     assert np.all(np.isfinite(out.mean))
     for j in (7, 8, 9):
         assert out.mean[0, :, j].min() >= 0.0
-    with pytest.raises(ValueError):
-        run_filter(runs.inp, FilterConfig(constraint="nonsense"))
-
-
-def test_freeze_calibration_states(plant_vector):
-    """freeze_calib_s: from then on the (non-free) calibration states are constants."""
-    runs = _runs(plant_vector, T=801, seed=6)
-    cfg = FilterConfig(calibrate=("m_L", "B_eff"), freeze_calib_s=0.4)
-    out = run_filter(runs.inp, cfg)
-    c_B = out.mean[0, :, 13]
-    assert np.all(np.isfinite(out.mean)) and out.n_jitter[0] == 0
-    assert np.ptp(c_B[401:]) < 1e-9 * max(1.0, abs(c_B[400]))  # frozen
-    assert np.ptp(out.mean[0, 401:, 12]) > 0  # m_L stays free
+    with pytest.raises(ValueError, match=r"FilterConfig.constraints.projection = 'nonsense': must be one of joint, leak"):
+        Constraints(projection="nonsense")
 
 
 def test_calibration_random_walk_stops_in_long_strokes(plant_vector):
@@ -259,22 +232,22 @@ def test_calibration_random_walk_stops_in_long_strokes(plant_vector):
     calibration state's std then only shrinks, while without the hold it grows by its walk; up to
     the first long-stroke sample both filters are identical."""
     from fdi.strokes import long_strokes
-    from fdi.ukf import N_AUG, _calibration_hold
 
     T = 6001
     u = np.full(T, 2.0)
     runs = simulate_runs(plant_vector[None], u, DT, seed=8)
-    hold = FilterConfig(calibrate=("m_L", "B_eff"))
-    assert hold.calib_hold_after_s == 2.0
-    gate, mask = _calibration_hold(runs.inp, hold, N_AUG + 2)
-    long = long_strokes(u[None], DT, hold.calib_hold_band_V, 2.0)
+    hold = FilterConfig(calibration=CalibrationStates(states=("m_L", "B_eff")))
+    assert hold.calibration.hold_after_s == 2.0
+    gate = calibration_hold(runs.inp, hold)
+    _, group = random_walk_gates(runs.inp, hold)
+    long = long_strokes(u[None], DT, hold.hold_band_V, 2.0)
     np.testing.assert_array_equal(gate == 0.0, long)
-    np.testing.assert_array_equal(np.flatnonzero(mask), [N_AUG, N_AUG + 1])
+    np.testing.assert_array_equal(np.flatnonzero(group == 0), [N_AUG, N_AUG + 1])
     k0 = int(np.argmax(long[0]))
     assert 1990 < k0 < 2010
     on = run_filter(runs.inp, hold)
-    off = run_filter(runs.inp, hold.with_(calib_hold_after_s=None))
-    assert np.max(np.abs(on.mean[0, :k0] - off.mean[0, :k0]) / state_scale(on.config)) < 1e-12
+    off = run_filter(runs.inp, hold.with_(calibration=replace(hold.calibration, hold_after_s=None)))
+    assert np.max(np.abs(on.mean[0, :k0] - off.mean[0, :k0]) / on.config.state_scale()) < 1e-12
     j = N_AUG + 1  # B_eff
     assert np.all(np.diff(on.std[0, k0:, j]) <= 1e-15 * on.std[0, k0, j])
     assert off.std[0, -1, j] > on.std[0, -1, j]
@@ -287,23 +260,21 @@ def test_random_walks_stop_resting_on_an_end_stop(plant_vector):
     gate opens exactly at 2 s, both filters are identical before it, and after it the offset's
     and K_int's std only shrink, while without the hold they grow by their walk. The same rest
     mid-stroke is never gated, nor is a rest on the stop that a stroke breaks."""
-    from fdi.ukf import I_FD, I_KINT, I_OFFSET, N_AUG, _random_walk_gates, pressed_on_stop
-
     T = 4001
     u = np.zeros(T)
     on_stop = simulate_runs(plant_vector[None], u, DT, seed=3, x0=0.0)
     cfg = FilterConfig()
-    assert cfg.hold_on_stop_s == 2.0
+    assert cfg.stops.hold_s == 2.0
     rest = pressed_on_stop(on_stop.inp, cfg)
     np.testing.assert_array_equal(rest[0], np.arange(T) * DT >= 2.0 - 1e-9)
-    gate, group = _random_walk_gates(on_stop.inp, cfg, N_AUG + len(cfg.calibrate))
+    gate, group = random_walk_gates(on_stop.inp, cfg)
     assert group[I_KINT] == group[I_OFFSET] == 1 and group[I_FD] == -1
     assert set(group[N_AUG:]) == {0}
     np.testing.assert_array_equal(gate[0, :, 1] == 0.0, rest[0])
     k0 = int(np.argmax(rest[0]))
     on = run_filter(on_stop.inp, cfg)
-    off = run_filter(on_stop.inp, cfg.with_(hold_on_stop_s=None))
-    assert np.max(np.abs(on.mean[0, :k0] - off.mean[0, :k0]) / state_scale(cfg)) < 1e-12
+    off = run_filter(on_stop.inp, cfg.with_(stops=replace(cfg.stops, hold_s=None)))
+    assert np.max(np.abs(on.mean[0, :k0] - off.mean[0, :k0]) / cfg.state_scale()) < 1e-12
     for j in (I_KINT, I_OFFSET):
         assert np.all(np.diff(on.std[0, k0:, j]) <= 1e-12 * on.std[0, k0, j])
         assert off.std[0, -1, j] > 1.05 * on.std[0, -1, j]
@@ -314,37 +285,19 @@ def test_random_walks_stop_resting_on_an_end_stop(plant_vector):
 
 
 def test_a_diverged_mean_is_restored(plant_vector):
-    """A mean beyond MAX_SCALED_STATE in its unit is a divergence even when finite: one wild
+    """A mean beyond Guards.max_scaled_state in its unit is a divergence even when finite: one wild
     pressure sample (1e15 Pa, which replay would refuse) throws the update far out, and the filter
     restores its last sane mean with P0 (counted as a state reset) instead of running on from it.
     Every reported mean stays within the bound and the filter is back on the data 1 s later."""
-    from fdi.ukf import MAX_SCALED_STATE
-
     runs = _runs(plant_vector, T=2001, seed=4)
     clean = run_filter(runs.inp)
     pA = runs.inp.pA.copy()
     pA[0, 500] = 1e15
     out = run_filter(replace(runs.inp, pA=pA))
     assert clean.n_state_reset[0] == 0 and out.n_state_reset[0] >= 1
-    assert np.all(np.abs(out.mean / state_scale(out.config)) <= MAX_SCALED_STATE)
+    assert np.all(np.abs(out.mean / out.config.state_scale()) <= out.config.guards.max_scaled_state)
     late = slice(1500, None)
     assert np.max(np.abs(out.mean[0, late, 0] - clean.mean[0, late, 0])) < 0.1e6  # p_A within 0.1 MPa
-
-
-def test_soft_freeze_shrinks_calibration_std(plant_vector):
-    """freeze_sd_factor > 0: at the freeze the (non-free) calibration states keep their mean,
-    their std is multiplied by the factor, and from then on they have no process noise."""
-    runs = _runs(plant_vector, T=801, seed=6)
-    base = FilterConfig(calibrate=("m_L", "B_eff"))
-    soft = base.with_(freeze_calib_s=0.4, freeze_sd_factor=0.5)
-    ref = run_filter(runs.inp, base.with_(q_calib=0.0, calib_noise=(("m_L", 0.25, 0.05), ("B_eff", 0.02, 0.0))))
-    out = run_filter(runs.inp, soft.with_(calib_noise=(("m_L", 0.25, 0.05), ("B_eff", 0.02, 0.0))))
-    assert np.all(np.isfinite(out.mean)) and out.n_jitter[0] == 0
-    # identical up to the freeze (B_eff has no process noise in either run)
-    assert np.max(np.abs(out.mean[0, :400] - ref.mean[0, :400]) / state_scale(out.config)) < 1e-9
-    # the freeze happens in the step-400 predict: its std is then below the unfrozen one
-    assert out.std[0, 400, 13] < 0.6 * ref.std[0, 400, 13]
-    assert np.all(out.std[0, 401:, 13] <= out.std[0, 400, 13] * (1 + 1e-9))
 
 
 def test_unknown_input_state_recovers_a_concealed_chamber_flow(plant_vector):
@@ -356,12 +309,10 @@ def test_unknown_input_state_recovers_a_concealed_chamber_flow(plant_vector):
     q_dA = -0.5e-3 / 60  # m^3/s
     runs = _runs(plant_vector, T=4001, faults={"Q_dA": profile("constant", q_dA, t)})
     base = FilterConfig()
-    q = list(base.q)
-    p0 = list(base.p0)
-    for i in range(7, 11):
-        q[i] = 0.0
-        p0[i] = 1e-6 * p0[i]
-    cfg = base.with_(q=tuple(q), p0=tuple(p0), disturb=("Q_dA", "Q_dB"))
+    faults = ("K_int", "K_extA", "K_extB", "offset")
+    cfg = (base.with_process_noise(**{f: 0.0 for f in faults})
+           .with_initial_sd(**{f: 1e-6 * base.initial_sd[f] for f in faults})
+           .with_(unknown_inputs=UnknownInputStates(states=("Q_dA", "Q_dB"))))
     out = run_filter(runs.inp, cfg)
     est_A, sd_A = out.estimate("Q_dA")
     est_B, _ = out.estimate("Q_dB")
@@ -382,13 +333,13 @@ def test_runs_of_different_lengths_equal_their_own_runs(plant_vector):
         one = replace(runs.inp, u=runs.inp.u[b:b + 1, :nb], pA=runs.inp.pA[b:b + 1, :nb],
                       pB=runs.inp.pB[b:b + 1, :nb], pos=runs.inp.pos[b:b + 1, :nb], params=runs.inp.params[b:b + 1])
         single = run_filter(one)
-        assert np.max(np.abs(out.mean[b, :nb] - single.mean[0]) / state_scale(out.config)) < 1e-9
+        assert np.max(np.abs(out.mean[b, :nb] - single.mean[0]) / out.config.state_scale()) < 1e-9
         assert np.allclose(out.ll[b, :nb], single.ll[0], rtol=0, atol=1e-9)
         assert np.all(np.isnan(out.mean[b, nb:]))
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), pos_kind=st.sampled_from([ukf.POS_X, ukf.POS_THETA]),
+@given(seed=st.integers(0, 2**31 - 1), pos_kind=st.sampled_from([POS_X, POS_THETA]),
        n=st.sampled_from([12, 18]))
 def test_closed_form_measurement_transform_equals_sigma_points(seed, pos_kind, n):
     """The update's unscented transform from the first N_READ Cholesky columns equals
@@ -398,30 +349,30 @@ def test_closed_form_measurement_transform_equals_sigma_points(seed, pos_kind, n
     G = rng.normal(size=(n, n))
     Pm = (G @ G.T / n + 1e-3 * np.eye(n))[None] * rng.uniform(1e-3, 1.0)
     z = rng.normal(size=(1, n))
-    z[0, ukf.I_X] = rng.uniform(1.0, 30.0)  # piston 1-30 cm: inside the joint's range
-    Wm, Wc, lam = ukf.merwe_weights(n, 1.0, 2.0, 0.0)
+    z[0, I_X] = rng.uniform(1.0, 30.0)  # piston 1-30 cm: inside the joint's range
+    Wm, Wc, lam = sigma.merwe_weights(n, 1.0, 2.0, 0.0)
     L1, L2, L3 = 0.35, 0.6, 0.5
     m = 3
     exact = [np.empty(m), np.empty((m, m)), np.empty((n, m))]
-    Lc = np.empty((n, ukf.N_READ))
-    assert ukf._chol_leading_cols(Pm[0], n + lam, Lc)
-    ukf._ut_measure_exact(Pm[0], z[0], n, Lc, Wm[0], Wc[0], Wc[1], pos_kind, L1, L2, L3, *exact,
-                          np.empty(ukf.N_READ), np.empty(ukf.N_READ))
-    sig = np.empty((2 * n + 1, n))
-    ukf._draw_sigma_points(Pm[0].copy(), Pm[0].copy(), z[0], n + lam, 1e-9, np.empty((n, n)), np.empty((n, n)),
-                           sig, np.zeros(4, dtype=np.int64), np.arange(n), n)
+    Lc = np.empty((n, N_READ))
+    assert sigma.cholesky_columns(Pm[0], n + lam, Lc, n, N_READ)
+    sigma.ut_measurement_closed_form(Pm[0], z[0], n, Lc, Wm[0], Wc[0], Wc[1], pos_kind, L1, L2, L3, *exact,
+                                     np.empty(N_READ), np.empty(N_READ))
+    sig, L = np.empty((2 * n + 1, n)), np.empty((n, n))
+    assert sigma.robust_sqrt(Pm[0].copy(), n + lam, 1e-9, L, np.empty((n, n)), np.arange(n), n) == 0
+    sigma.sigma_points(z[0], L, np.arange(n), n, sig)
     ref = [np.empty(m), np.empty((m, m)), np.empty((n, m))]
-    ukf._ut_measure_sigma(sig, z[0], Wm, Wc, pos_kind, L1, L2, L3, np.empty((2 * n + 1, m)), np.empty(m), *ref)
+    sigma.ut_measurement(sig, z[0], Wm, Wc, pos_kind, L1, L2, L3, np.empty((2 * n + 1, m)), np.empty(m), *ref)
     for a, b in zip(exact, ref):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12 * np.abs(b).max())
 
 
 def _one_update(p, pos, cfg, z0, P0):
     """The filter's update at sample 0 (no prediction) of one linear-sensor reading."""
-    inp = ukf.FilterInput(dt=DT, u=np.zeros((1, 1)), pA=np.array([[5.2e6]]), pB=np.array([[1.1e6]]),
-                          pos=np.array([[pos]]), pos_kind=ukf.POS_X, params=p[None])
+    inp = FilterInput(dt=DT, u=np.zeros((1, 1)), pA=np.array([[5.2e6]]), pB=np.array([[1.1e6]]),
+                      pos=np.array([[pos]]), pos_kind=POS_X, params=p[None])
     out = run_filter(inp, cfg, z0=z0, P0=P0)
-    return out.mean[0, 0] / state_scale(cfg), out.std[0, 0] / state_scale(cfg)
+    return out.mean[0, 0] / cfg.state_scale(), out.std[0, 0] / cfg.state_scale()
 
 
 def test_on_an_end_stop_only_the_load_learns_from_the_position(plant_vector):
@@ -430,8 +381,8 @@ def test_on_an_end_stop_only_the_load_learns_from_the_position(plant_vector):
     the state there: H selects p_A, p_B and x): each state outside the learners keeps the optimal
     gain of the pressures alone and none from the position, and the posterior covariance is
     Joseph's (I - K H) P (I - K H)^T + K R K^T. Off the stop the update is the optimal one."""
-    cfg = FilterConfig(project_mean=False, nis_factor=0.0)
-    n = ukf.n_states(cfg)
+    cfg = PLAIN
+    n = cfg.n_states
     rng = np.random.default_rng(5)
     A = rng.standard_normal((n, n))
     P0 = (A @ A.T / n + np.eye(n))[None]  # correlated: every state sees every reading
@@ -439,9 +390,9 @@ def test_on_an_end_stop_only_the_load_learns_from_the_position(plant_vector):
     z0[0, 4] = 0.02  # x = 0.2 mm, scaled (cm): near the stop
     H = np.zeros((3, n))
     H[0, 0] = H[1, 1] = H[2, 4] = 1.0  # scaled units: pressures in MPa, x in cm for both
-    R = np.diag(measurement_variances(cfg, ukf.POS_X))
-    learn = np.array([j < N_MODEL or name in cfg.stop_learners for j, name in enumerate(ukf.state_names(cfg))])
-    assert learn.sum() == N_MODEL + 2 and not learn[ukf.I_KEXTA]
+    R = np.diag(measurement_variances(cfg, POS_X))
+    learn = np.array([j < N_MODEL or name in cfg.stops.learners for j, name in enumerate(cfg.state_names)])
+    assert learn.sum() == N_MODEL + 2 and not learn[I_KEXTA]
     for pos, restricted in ((0.0, True), (0.05, False)):
         y = np.array([5.2, 1.1, pos / 1e-2])
         Pp, S = P0[0], H @ P0[0] @ H.T + R
@@ -457,11 +408,11 @@ def test_on_an_end_stop_only_the_load_learns_from_the_position(plant_vector):
         np.testing.assert_allclose(sd, np.sqrt(np.diag(P_ref)), rtol=1e-8)  # x: 1e-3 after cancellation
     # the encoder's reading never restricts the gain, as theta or as x computed from it
     # (stop_learners is for linear sensors); a linear sensor's does, on the stop only
-    on_stop = ukf.FilterInput(dt=DT, u=np.zeros((1, 3)), pA=np.full((1, 3), 5e6), pB=np.full((1, 3), 1e6),
-                              pos=np.array([[0.0, 0.05, np.nan]]), pos_kind=ukf.POS_X, params=plant_vector[None])
-    np.testing.assert_array_equal(ukf._stop_gain_gate(on_stop, cfg, n)[0], [[True, False, False]])
+    on_stop = FilterInput(dt=DT, u=np.zeros((1, 3)), pA=np.full((1, 3), 5e6), pB=np.full((1, 3), 1e6),
+                          pos=np.array([[0.0, 0.05, np.nan]]), pos_kind=POS_X, params=plant_vector[None])
+    np.testing.assert_array_equal(stop_gain_gate(on_stop, cfg)[0], [[True, False, False]])
     for inp in (_runs(plant_vector, T=2).inp, replace(on_stop, position_sensor="encoder")):
-        assert not ukf._stop_gain_gate(inp, cfg, n)[0].any()
+        assert not stop_gain_gate(inp, cfg)[0].any()
 
 
 def test_the_position_on_an_end_stop_does_not_push_the_leaks(plant_vector):
@@ -482,7 +433,8 @@ def test_the_position_on_an_end_stop_does_not_push_the_leaks(plant_vector):
     runs = simulate_runs(true, u, DT, nominal=np.tile(plant_vector, (B, 1)), position="x", x_noise=1e-5,
                          seed=3, x0=0.0)
     assert runs.truth["x"].max() == 0.0  # the load is never lifted
-    peak = {learners: ukf.leak_lpm(run_filter(runs.inp, FilterConfig(stop_learners=learners)).mean[:, 2000:, ukf.I_KEXTA]).max(axis=1)
+    peak = {learners: leak_lpm(run_filter(runs.inp, FilterConfig(stops=StopRules(learners=learners)))
+                               .mean[:, 2000:, I_KEXTA]).max(axis=1)
             for learners in (("F_d", "c_m_L"), None)}
     assert peak[("F_d", "c_m_L")].mean() <= peak[None].mean()
     assert max(peak[None].max(), peak[("F_d", "c_m_L")].max()) < 0.16
@@ -495,9 +447,9 @@ def test_p0_is_checked_at_the_boundary_and_identical_calls_agree(plant_vector):
     only positive semi-definite (a zero variance) is factorised with jitter, the same every call."""
     runs = _runs(plant_vector, T=201)
     cfg = FilterConfig()
-    n = len(state_scale(cfg))
+    n = cfg.n_states
     z0 = initial_mean(runs.inp, cfg)
-    good = np.diag((noise_vectors(cfg)[1] / state_scale(cfg)) ** 2)[None]
+    good = np.diag((cfg.noise_vectors()[1] / cfg.state_scale()) ** 2)[None]
     bad = {"all zeros": np.zeros((1, n, n)), "a NaN": good.copy(), "asymmetric": good.copy(),
            "indefinite": good.copy()}
     bad["a NaN"][0, 3, 3] = np.nan
@@ -512,3 +464,35 @@ def test_p0_is_checked_at_the_boundary_and_identical_calls_agree(plant_vector):
     a, b = (run_filter(runs.inp, cfg, z0=z0, P0=semi) for _ in range(2))
     assert np.array_equal(a.mean, b.mean) and np.array_equal(a.std, b.std)
     assert np.all(np.isfinite(a.mean)) and a.n_jitter[0] >= 1
+
+
+def test_filter_config_is_checked_when_built():
+    """A FilterConfig that is not valid is refused when it is built, in one line naming the group,
+    the field and what a valid value is (never later, inside the run). Process noise and initial
+    stds are given per state name; a variant replaces a few."""
+    from fdi.config import INITIAL_SD, PROCESS_NOISE, Sensors
+    cfg = FilterConfig().with_process_noise(K_int=0.3e-9)
+    assert cfg.process_noise["K_int"] == 0.3e-9 and cfg.process_noise["K_extA"] == PROCESS_NOISE["K_extA"]
+    assert cfg.noise_vectors()[0][I_KINT] == 0.3e-9 and len(cfg.noise_vectors()[0]) == cfg.n_states
+    cases = (
+        (lambda: FilterConfig(process_noise={**PROCESS_NOISE, "K_itn": 1e-9}),
+         r"FilterConfig.process_noise: 'K_itn' is not a base state \(did you mean 'K_int'\?\)"),
+        (lambda: FilterConfig().with_process_noise(K_int=-1.0),
+         r"FilterConfig.process_noise\['K_int'\] = -1.0: must be a finite std >= 0"),
+        (lambda: FilterConfig(initial_sd={"p_A": 2e5}), r"FilterConfig.initial_sd: no value for 'p_B'"),
+        (lambda: FilterConfig().with_initial_sd(offset=float("nan")), r"initial_sd\['offset'\] = nan"),
+        (lambda: CalibrationStates(states=("m_X",)), r"calibration.states: 'm_X' is not a parameter of sam.P"),
+        (lambda: CalibrationStates(states=("m_L", "m_L")), r"calibration.states = .* names a parameter twice"),
+        (lambda: CalibrationStates(noise={"B_eff": (0.0, 0.1)}), r"calibration.noise\['B_eff'\]"),
+        (lambda: Sensors(pressure_noise=0.0), r"sensors.pressure_noise = 0.0: must be > 0"),
+        (lambda: Guards(jitter=0.0), r"guards.jitter = 0.0"),
+        (lambda: FilterConfig(stops=StopRules(learners=("F_dd",))),
+         r"stops.learners: 'F_dd' is not a filter state \(did you mean 'F_d'\?\)"),
+        (lambda: UnknownInputStates(states=("Q_dC",)), r"unknown_inputs.states: 'Q_dC' is not an unknown input"),
+        (lambda: FilterConfig(sensors=1.0), r"FilterConfig.sensors = 1.0: must be a Sensors"),
+    )
+    for build, message in cases:
+        with pytest.raises(ValueError, match=message) as err:
+            build()
+        assert "\n" not in str(err.value)
+    assert INITIAL_SD["K_int"] > 0
