@@ -4,8 +4,8 @@ points) against a plain filterpy loop calling the model once per sigma point.
     PYTHONPATH=. python benchmarks/bench_fdi.py
 
 It ends with a 3-minute recording: its CSV read and the replay's CSV output, against what a
-user would otherwise write (np.genfromtxt, np.savetxt) and our own earlier field-by-field code,
-then the whole `samfdi fdi replay` path (read, filter, diagnosis, files, figure).
+user would otherwise write (np.genfromtxt, csv.writer) and a field-by-field reader, then the
+whole `samfdi fdi replay` path (read, filter, diagnosis, files, figure).
 """
 
 from __future__ import annotations
@@ -20,10 +20,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from sam import load_plant  # noqa: E402
-from fdi.montecarlo import make_batch  # noqa: E402
-from fdi.synth import input_signal, lpm, profile, simulate_runs  # noqa: E402
-from fdi import POS_THETA, FilterConfig, run_filter  # noqa: E402
+from fdi import POS_THETA, FilterConfig, Thresholds, diagnose, replay, replay_recording, run_filter  # noqa: E402
 from fdi.filter import initial_mean  # noqa: E402
+from fdi.montecarlo import make_batch  # noqa: E402
+from fdi.offline import write_csv  # noqa: E402
+from fdi.statistics import statistics  # noqa: E402
+from fdi.synth import input_signal, lpm, profile, simulate_runs  # noqa: E402
+from fdi.tune import chunk_job, jobs_of  # noqa: E402
 
 
 def main() -> None:
@@ -61,8 +64,6 @@ def main() -> None:
 def _bench_isolation(plant, runs) -> None:
     """Replay with the likelihood isolation (filter, CUSUM, reference and bank over the record)
     and the tune's work per run (the bank decides within 1 s of the alarm) on alarmed runs."""
-    from fdi.detect import Thresholds, diagnose, statistics
-
     th = Thresholds.shipped()
 
     def replay_once():
@@ -77,27 +78,24 @@ def _bench_isolation(plant, runs) -> None:
     # what `samfdi fdi replay` runs (input checks, observability check, filter, residuals, every
     # stage of the diagnosis), without writing files: the issue's "one replay" figure
     from sam import Recording
-    from fdi.replay import replay
     t = np.arange(runs.inp.u.shape[1]) * runs.inp.dt
     rec = Recording(t, {"u": runs.inp.u[0], "pA": runs.inp.pA[0], "pB": runs.inp.pB[0], "theta": runs.inp.pos[0]},
                     source="bench")
     replay(rec, plant)
     times = [_timed(lambda: replay(rec, plant)) for _ in range(7)]
-    print(f"fdi.replay.replay (every check and stage, no files), 4 s at 1 kHz: median {np.median(times):.3f} s, "
+    print(f"fdi.replay (every check and stage, no files), 4 s at 1 kHz: median {np.median(times):.3f} s, "
           f"best {min(times):.3f} s -> {4.0 / np.median(times):.0f}x real time (median)")
-    from fdi.tune import _chunk_job, _jobs
-    jobs = _jobs(230)  # the tune of docs/fdi.md: 230 healthy + 46 runs per fault case
+    jobs = jobs_of(230)  # the tune of docs/fdi.md: 230 healthy + 46 runs per fault case
     n_h = sum(j[3] for j in jobs if j[1] is None)
     n_f = sum(j[3] for j in jobs if j[1] is not None)
-    _chunk_job(plant, th, "K_extA", 0.5, 4, 2)  # compile / load the cache
-    th_ = _timed(lambda: _chunk_job(plant, th, None, 0.0, 50, 1000))
-    tf_ = _timed(lambda: _chunk_job(plant, th, "K_int", 0.25, 50, 500_000))
+    chunk_job(plant, th, "K_extA", 0.5, 4, 2)  # compile / load the cache
+    th_ = _timed(lambda: chunk_job(plant, th, None, 0.0, 50, 1000))
+    tf_ = _timed(lambda: chunk_job(plant, th, "K_int", 0.25, 50, 500_000))
     per_1000 = (n_h * th_ + n_f * tf_) / 50 / (n_h + n_f) * 1000
-    from dataclasses import replace as _replace
-    th4 = _replace(th, run_length_s=4.0)  # the issue's measure: every run 4 s long
-    t4_ = _timed(lambda: _chunk_job(plant, th4, None, 0.0, 50, 1000))
+    th4 = th.with_(run_length_s=4.0)  # the issue's measure: every run 4 s long
+    t4_ = _timed(lambda: chunk_job(plant, th4, None, 0.0, 50, 1000))
     per_1000_4s = (n_h * t4_ + n_f * tf_) / 50 / (n_h + n_f) * 1000
-    print(f"tune work per run (simulation, filter, CUSUM, isolation; one core): healthy {th.run_length_s:g} s "
+    print(f"tune work per run (simulation, filter, CUSUM, isolation; one core): healthy {th.derived.run_length_s:g} s "
           f"{th_ / 50 * 1e3:.0f} ms, healthy 4 s {t4_ / 50 * 1e3:.0f} ms, faulty 4 s {tf_ / 50 * 1e3:.0f} ms -> "
           f"1000 runs of the tune's mix ~ {per_1000:.0f} s on one core, ~ {per_1000 / 2:.0f} s on 2 cores; "
           f"1000 runs of 4 s ~ {per_1000_4s / 2:.0f} s on 2 cores if every faulty run were as slow as these "
@@ -112,8 +110,6 @@ def _bench_long_recording(plant, duration_s: float = 180.0) -> None:
 
     from sam import Recording, read_recording, write_recording
     from sam import recording as recording_module
-    from fdi import replay as replay_module
-    from fdi.replay import replay_recording
 
     t = np.arange(int(round(duration_s * 1e3)) + 1) * 1e-3
     u = input_signal("sine", t, amplitude=3.0, frequency=1.0 / 40.0)
@@ -129,14 +125,14 @@ def _bench_long_recording(plant, duration_s: float = 180.0) -> None:
         recording_module._fast_table = fast_table
         gen = _median(lambda: np.genfromtxt(path, delimiter=",", names=True), 1)
         print(f"read a {duration_s:g} s CSV recording ({len(t)} rows): ours {ours:.2f} s, np.genfromtxt {gen:.2f} s "
-              f"({gen / ours:.1f}x), field by field (until session 19) {careful:.2f} s ({careful / ours:.1f}x)")
+              f"({gen / ours:.1f}x), field by field {careful:.2f} s ({careful / ours:.1f}x)")
         table = {f"c{j}": np.random.default_rng(j).normal(size=len(t)) for j in range(57)}  # a replay's 57 columns
         out = Path(tmp) / "out.csv"
-        ours = _median(lambda: replay_module._write_csv(out, table), 1)
+        ours = _median(lambda: write_csv(out, table), 1)
         data = np.column_stack(list(table.values()))
         tuned = _median(lambda: _write_per_row(out, table), 1)
 
-        def by_csv_writer():  # the replay's writer until session 19
+        def by_csv_writer():  # the standard library's writer
             with out.open("w", newline="") as f:
                 w = csv.writer(f)
                 w.writerow(list(table))
@@ -145,7 +141,7 @@ def _bench_long_recording(plant, duration_s: float = 180.0) -> None:
 
         old = _median(by_csv_writer, 1)
         print(f"write a replay's CSV output ({data.size / 1e6:.1f} M values): ours (np.savetxt '%.17g') {ours:.1f} s, "
-              f"repr joined per row {tuned:.1f} s ({tuned / ours:.1f}x), csv.writer of repr (until session 19) "
+              f"repr joined per row {tuned:.1f} s ({tuned / ours:.1f}x), csv.writer of repr "
               f"{old:.1f} s ({old / ours:.1f}x)")
         rec = read_recording(path)
         whole = _timed(lambda: replay_recording(rec, plant, Path(tmp) / "replay"))

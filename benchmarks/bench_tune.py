@@ -26,11 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from sam import load_plant  # noqa: E402
-from fdi import tune  # noqa: E402
-from fdi.detect import Thresholds  # noqa: E402
-from fdi.montecarlo import make_batch  # noqa: E402
-from fdi import FilterConfig  # noqa: E402
+from fdi import FilterConfig, Thresholds, tune  # noqa: E402
 from fdi.filter import initial_mean  # noqa: E402
+from fdi.montecarlo import make_batch  # noqa: E402
 
 RUN_S = 4.0  #: the issue's run length [s]
 N_HEALTHY = 230  #: the healthy runs of docs/fdi.md's tune (`--runs 230`)
@@ -38,21 +36,21 @@ N_HEALTHY = 230  #: the healthy runs of docs/fdi.md's tune (`--runs 230`)
 
 def tune_jobs() -> list:
     """The tune's chunks of ``--runs 230`` without its long cycles: 230 healthy + 17 x 46 fault runs."""
-    return [j for j in tune._jobs(N_HEALTHY) if j[0] != "healthy_long"]
+    return [j for j in tune.jobs_of(N_HEALTHY) if j[0] != "healthy_long"]
 
 
 def time_tune(plant, th: Thresholds, jobs: list, workers: int) -> float:
     """Wall time [s] of one tune of ``jobs`` on ``workers`` processes (the tune's own pool, worker
     start-up included), into a fresh folder."""
     with tempfile.TemporaryDirectory() as tmp:
-        return tune._compute(plant, th, Path(tmp), jobs, jobs, "bench", workers, None, False, False, False)["wall_s"]
+        return tune.compute_chunks(plant, th, Path(tmp), jobs, jobs, "bench", workers, None, False, False, False)["wall_s"]
 
 
 def filterpy_seconds_per_run(plant, th: Thresholds, n_ref: int = 400) -> float:
     """Seconds a plain filterpy loop (model once per sigma point) needs to filter one 4 s run."""
     from test_fdi_ukf import _filterpy_reference
 
-    runs = make_batch(plant, 1, 1000, duration=RUN_S, position_sensor=th.position_sensor)
+    runs = make_batch(plant, 1, 1000, duration=RUN_S, position_sensor=th.derived.position_sensor)
     cfg = FilterConfig()
     z0 = initial_mean(runs.inp, cfg)
     P0 = np.diag((cfg.noise_vectors()[1] / cfg.state_scale()) ** 2)[None].copy()
@@ -68,7 +66,7 @@ def main(argv=None) -> None:
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args(argv)
     plant = load_plant()
-    th = replace(Thresholds.shipped(), run_length_s=RUN_S)
+    th = Thresholds.shipped().with_(run_length_s=RUN_S)
     jobs = tune_jobs()
     n_runs = sum(j[3] for j in jobs)
     n_healthy = sum(j[3] for j in jobs if j[1] is None)

@@ -1,27 +1,34 @@
-"""Unscented-Kalman-filter fault detection and isolation (see docs/fdi.md).
+"""Fault detection and isolation with an augmented-state Unscented Kalman Filter (docs/fdi.md).
 
-* :mod:`fdi.filter`: the batched augmented-state UKF over ``sam.step_batch``, configured by
-  :class:`fdi.config.FilterConfig`;
-* :mod:`fdi.detect`: residuals, CUSUM alarms, diagnosis;
-* :mod:`fdi.isolate`: isolation and size by likelihood (a bank of constrained filters);
-* :mod:`fdi.replay`: offline replay of a recording (``samfdi fdi replay``);
-* :mod:`fdi.signatures`, :mod:`fdi.tune`: signature tables, Monte Carlo thresholds;
-* :mod:`fdi.rates`: a Monte Carlo's rates with exact intervals, and the verdict on a target rate.
+One pipeline, one direction, each stage a module returning an immutable, typed result:
+
+* the recording, checked (:mod:`fdi.recording`) -> :class:`FilterInput`;
+* the filter (:mod:`fdi.filter`; :class:`FilterConfig`) -> :class:`FilterOutput`;
+* the change tests (:mod:`fdi.statistics`) -> :class:`Statistics`;
+* the alarms (:mod:`fdi.alarms`);
+* isolation and sizing by the likelihood bank (:mod:`fdi.bank`, :mod:`fdi.isolation`);
+* the diagnosis, which drives the stages (:mod:`fdi.diagnosis`) -> :class:`Diagnosis`.
+
+:func:`replay` runs them on one recording (:mod:`fdi.offline`); :func:`run_tune` evaluates the detector on Monte
+Carlo runs and :func:`analyse` turns those into rates with intervals; :mod:`fdi.study` derives
+:class:`Thresholds` from the sensitivity studies.
 """
 
-from .config import CalibrationStates, Constraints, FilterConfig, Guards, Sensors, SigmaPoints, StopRules, UnknownInputStates
-from .detect import Diagnosis, Thresholds
+from .config import (
+    CalibrationStates, Constraints, FilterConfig, Guards, Sensors, SigmaPoints, StopRules, UnknownInputStates,
+)
+from .diagnosis import Diagnosis, diagnose, judge
 from .filter import FilterInput, FilterOutput, run_filter
+from .metrics import analyse
+from .offline import Replay, replay, replay_recording
 from .states import K_PER_LPM, POS_THETA, POS_X, STATE_NAMES, leak_lpm
+from .statistics import Statistics
+from .thresholds import Thresholds
+from .tune import run_tune
 
-
-def replay_recording(rec, plant, out_dir, **kw) -> Diagnosis:
-    """Replay a recording (only its measured columns) and write the outputs into out_dir."""
-    from .replay import replay_recording as _replay
-
-    return _replay(rec, plant, out_dir, **kw)
-
-
-__all__ = ["CalibrationStates", "Constraints", "Diagnosis", "FilterConfig", "FilterInput", "FilterOutput", "Guards",
-           "K_PER_LPM", "POS_THETA", "POS_X", "STATE_NAMES", "Sensors", "SigmaPoints", "StopRules", "Thresholds",
-           "UnknownInputStates", "leak_lpm", "replay_recording", "run_filter"]
+__all__ = [
+    "CalibrationStates", "Constraints", "Diagnosis", "FilterConfig", "FilterInput", "FilterOutput", "Guards",
+    "K_PER_LPM", "POS_THETA", "POS_X", "Replay", "STATE_NAMES", "Sensors", "SigmaPoints", "Statistics", "StopRules",
+    "Thresholds", "UnknownInputStates", "analyse", "diagnose", "judge", "leak_lpm", "replay", "replay_recording",
+    "run_filter", "run_tune",
+]

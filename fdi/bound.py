@@ -5,7 +5,7 @@ miss that no test could avoid from a miss of our test, :func:`onset_evidence` as
 the data carry: a bank of constant-parameter filters (healthy, and each single fault free
 with the bank's prior) started at the TRUE onset from the healthy reference filter, with
 the reference's calibration (load mass, B_eff, notch flows) as uncertain CONSTANT states
-(:func:`fdi.isolate.pair_config`), run for ``window_s``. Its log-likelihood of each fault
+(:func:`fdi.bank.pair_config`), run for ``window_s``. Its log-likelihood of each fault
 hypothesis minus the healthy one's at the window's end is the evidence [nats].
 
 Used by ``samfdi fdi tune --bound``: the healthy runs' largest evidence for any fault sets
@@ -24,11 +24,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import isolate
+from .bank import run_bank_calibrated, run_reference
+from .faults import BANK
 from .filter import FilterOutput
 
 #: The bank's hypotheses, "none" first: the evidence columns.
-HYPOTHESES = tuple(isolate.BANK)
+HYPOTHESES = tuple(BANK)
 
 
 def onset_evidence(out: FilterOutput, k_onset: np.ndarray, window_s: float = 1.0) -> np.ndarray:
@@ -40,8 +41,8 @@ def onset_evidence(out: FilterOutput, k_onset: np.ndarray, window_s: float = 1.0
     rows = np.arange(B)
     T = out.inp.u.shape[1]
     k1 = np.minimum(k0 + int(round(window_s / out.inp.dt)), T)
-    ref = isolate.run_reference(out, rows, k0 + 1)  # the seed is its posterior at k0: no further
-    bank = isolate.run_bank_calibrated(out, ref, rows, k0, k1, HYPOTHESES)
+    ref = run_reference(out, rows, k0 + 1)  # the seed is its posterior at k0: no further
+    bank = run_bank_calibrated(out, ref, rows, k0, k1, HYPOTHESES)
     ll = bank.loglik[rows, :, k1 - k0 - 1]  # the window's last valid sample
     return ll - ll[:, :1]
 

@@ -5,11 +5,17 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from sam import load_plant, read_recording
 from sam.errors import UserError, output_folder
 
-#: the position sensors of fdi.detect.SHIPPED_BY_SENSOR (literal: the parser is built without
-#: importing fdi's numerics; tests/test_fdi_position_sensor.py checks they agree)
-SENSORS = ("encoder", "linear")
+from .recording import CHECKS
+from .offline import replay_recording
+from .signatures import signature_table, write_signatures
+from .study import OUTPUT_FILES, StudyDesign, compute_thresholds, write_thresholds
+from .thresholds import SHIPPED_BY_SENSOR, Thresholds, describe
+from .tune import run_tune
+
+SENSORS = tuple(SHIPPED_BY_SENSOR)
 
 
 def add_commands(subparsers) -> None:
@@ -96,13 +102,10 @@ def add_commands(subparsers) -> None:
 
 
 def _plant(args):
-    from sam import load_plant
     return load_plant(args.plant)
 
 
 def _load_thresholds(path):
-    from .detect import Thresholds
-
     if not path:
         return None  # the shipped file of the recording's position sensor (replay) or of the encoder
     try:
@@ -112,30 +115,27 @@ def _load_thresholds(path):
 
 
 def _thresholds(args) -> int:
-    from .replay import DT_TOLERANCE, MIN_SAMPLE_RATE_HZ
-    from .thresholds import FA_LEVEL, OUTPUT_FILES, TRIGGER_LEVEL, compute_thresholds, describe, write_thresholds
-
     if args.workers < 1:
         raise UserError(f"--workers: must be >= 1, got {args.workers}")
     k = 1000.0 / args.sample_rate if math.isfinite(args.sample_rate) and args.sample_rate > 0 else float("inf")
+    tol, min_rate = CHECKS.rate_tolerance, CHECKS.min_sample_rate_Hz
     # within 1 % of a whole number of ms, as replay matches a recording's rate: 333.3 Hz is 3 ms
-    if not (math.isfinite(k) and abs(k / max(1, round(k)) - 1.0) <= DT_TOLERANCE
-            and 1 <= round(k) <= 1000 / MIN_SAMPLE_RATE_HZ):
+    if not (math.isfinite(k) and abs(k / max(1, round(k)) - 1.0) <= tol and 1 <= round(k) <= 1000 / min_rate):
         raise UserError(f"--sample-rate: {args.sample_rate:g} Hz; the studies simulate at 1 kHz and can sample "
-                        f"every 1, 2, ..., {int(1000 / MIN_SAMPLE_RATE_HZ)} ms: 1000, 500, 333.33, 250, 200, ..., "
-                        f"{MIN_SAMPLE_RATE_HZ:g} Hz")
+                        f"every 1, 2, ..., {int(1000 / min_rate)} ms: 1000, 500, 333.33, 250, 200, ..., {min_rate:g} Hz")
     for name, n in (("--n-leak", args.n_leak), ("--n-nuisance", args.n_nuisance)):
         if n < 4:
             raise UserError(f"{name}: need at least 4, got {n}")
-    trigger = TRIGGER_LEVEL if args.trigger_level is None else args.trigger_level
-    if not (math.isfinite(trigger) and FA_LEVEL <= trigger <= 1.0):
+    default = StudyDesign()
+    trigger = default.trigger_level if args.trigger_level is None else args.trigger_level
+    if not (math.isfinite(trigger) and default.false_alarm_level <= trigger <= 1.0):
         raise UserError(f"--trigger-level: {args.trigger_level:g} is not a rate per run between the false-alarm "
-                        f"level {FA_LEVEL:g} and 1")
+                        f"level {default.false_alarm_level:g} and 1")
     plant = _plant(args)
     out = output_folder(args.out, OUTPUT_FILES, args.force)
-    th, report = compute_thresholds(plant, N_leak=args.n_leak, N_nuisance=args.n_nuisance, trigger_level=trigger,
-                                    workers=args.workers, progress=True, sample_dt_s=round(k) * 1e-3,
-                                    position_sensor=args.position_sensor)
+    design = StudyDesign(n_leak=args.n_leak, n_nuisance=args.n_nuisance, trigger_level=trigger,
+                         sample_dt_s=round(k) * 1e-3, position_sensor=args.position_sensor)
+    th, report = compute_thresholds(plant, design, workers=args.workers, progress=True)
     print(describe(th))
     for p in write_thresholds(th, report, out):
         print(f"wrote {p}")
@@ -143,10 +143,6 @@ def _thresholds(args) -> int:
 
 
 def _replay(args) -> int:
-    from sam import read_recording
-
-    from .replay import replay_recording
-
     plant = _plant(args)
     rec = read_recording(args.recording)
     th = _load_thresholds(args.thresholds)
@@ -184,8 +180,6 @@ def _replay(args) -> int:
 
 
 def _signatures(args) -> int:
-    from .signatures import signature_table, write_signatures
-
     plant = _plant(args)
     out = output_folder(args.out, ("signatures.csv", "signatures.md", "signatures.png"), args.force)
     rows = signature_table(plant)
@@ -195,8 +189,6 @@ def _signatures(args) -> int:
 
 
 def _tune(args) -> int:
-    from .tune import run_tune
-
     if args.runs < 5:
         raise UserError(f"--runs: need at least 5 runs, got {args.runs}")
     if args.workers < 1:

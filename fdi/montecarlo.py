@@ -4,6 +4,7 @@ and model uncertainty, filtered many at a time by the batched UKF."""
 from __future__ import annotations
 
 import multiprocessing
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -14,14 +15,15 @@ from sam.hydraulics import fault_leakages_batch
 
 from .synth import POSITION_SENSORS, lpm, profile, random_input, simulate_runs
 
-#: Nuisance parameters and their relative half-ranges: Table 1's parameters with the
-#: ranges narrowed to what a calibrated model still leaves uncertain.
+#: The nuisance box of the threshold study and the Monte Carlo: Table 1's parameters that a
+#: calibration leaves uncertain, their relative half-widths (each valve notch's flow and
+#: pressure drop +-2 %, B_eff +-10 %, viscous friction +-20 %).
 NUISANCE = {
     "Q_N_PA": 0.02, "Q_N_AT": 0.02, "Q_N_PB": 0.02, "Q_N_BT": 0.02,
     "dp_N_PA": 0.02, "dp_N_AT": 0.02, "dp_N_PB": 0.02, "dp_N_BT": 0.02,
     "B_eff": 0.10, "b": 0.20,
 }
-LOAD_RANGE = (0.0, 800.0)  #: kg, unknown to the filter
+LOAD_RANGE = (0.0, 800.0)  #: kg: the load, unknown to the filter
 INPUTS = ("sine", "cycle", "prbs")
 #: The issue's 20-60 s extend/retract cycles as a healthy population of their own (the tune's
 #: "healthy_long" runs; not in the threshold studies: fdi.synth.CYCLE_PERIOD_S says why). Each
@@ -32,6 +34,32 @@ LONG_CYCLES = {"period_s": (20.0, 60.0), "amplitude_V": (1.0, 4.0), "dwell_fract
                "x0_m": (0.02, 0.40)}
 #: the input families of make_batch: the studies' mix, and the long cycles
 INPUT_FAMILIES = ("standard", "long_cycles")
+
+
+@dataclass(frozen=True)
+class TuneDesign:
+    """The Monte Carlo evaluation of the detector (``samfdi fdi tune``): its fault cases, runs
+    and what it scores. Healthy runs last the thresholds' run_length_s (their false-alarm level's)."""
+
+    #: fault -> its sizes: leaks in L/min at 10 MPa, the offset in fractions of spool travel
+    fault_sizes: dict = field(default_factory=lambda: {
+        "K_int": (0.1, 0.25, 0.5, 1.0), "K_extA": (0.1, 0.25, 0.5, 1.0), "K_extB": (0.1, 0.25, 0.5, 1.0),
+        "offset": (0.01, -0.01, 0.02, -0.02, 0.05)})
+    fault_run_s: float = 4.0  #: s: the length of a fault run
+    dt: float = 1e-3  #: s: the simulation's and the filter's sampling step
+    #: s: each fault run steps in at its own onset, uniform in this range (+ the scored second < fault_run_s)
+    onset_range_s: tuple = (1.5, 2.5)
+    within_s: float = 1.0  #: s: scored: detected and isolated within this long of the onset
+    reference_s: float = 4.0  #: s: the healthy reference recording of ``--reference``
+    chunk_runs: int = 25  #: runs per chunk (a chunk is saved as it finishes)
+    #: each fault case detected and isolated within ``within_s`` in at least this fraction of runs
+    target_rate: float = 0.95
+    load_bins_kg: tuple = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))  #: load thirds the rates are split by
+    #: L/min: edges of the flow a leak passed in its scored second, for isolation by flow
+    flow_bins_lpm: tuple = (0.05, 0.1, 0.15, 0.25, 0.5, 1.0)
+
+
+TUNE = TuneDesign()
 
 
 #: the leak faults, in the order of fault_leakages' flows

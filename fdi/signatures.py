@@ -10,7 +10,8 @@ import numpy as np
 
 from sam import P, Plant
 
-from .detect import Thresholds, residuals
+from .statistics import residuals
+from .thresholds import Thresholds
 from .synth import lpm, profile, simulate_runs
 from .filter import run_filter
 from .states import leak_lpm

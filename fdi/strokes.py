@@ -1,6 +1,6 @@
 """Strokes of the valve input: which way it drives the cylinder and for how long.
 
-The detector's long-stroke rule (:attr:`fdi.detect.Thresholds.long_stroke_s`) and the filter's
+The detector's long-stroke rule (the thresholds' ``long_stroke_s``, :mod:`fdi.thresholds`) and the filter's
 hold of its calibration states in long strokes (:attr:`fdi.config.CalibrationStates.hold_after_s`)
 read the same strokes from the input alone.
 """

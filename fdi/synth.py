@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sam import P, profiles, simulate_batch
+from sam import P, initial_state, profiles, simulate_batch
 from sam.hydraulics import leak_coefficient
 from sam.measurement import quantise_angle
 from sam.geometry import joint_angle
@@ -20,7 +20,7 @@ from .config import Sensors
 from .filter import FilterInput
 from .states import POS_THETA, POS_X
 
-#: the simulated position channel of each position sensor (fdi.detect.SHIPPED_BY_SENSOR): the
+#: the simulated position channel of each position sensor (fdi.thresholds.SHIPPED_BY_SENSOR): the
 #: SAM's quantised encoder, or x from a linear transducer with the white noise the filter
 #: assumes for one (fdi.config.Sensors.x_noise, 10 um)
 POSITION_SENSORS = {"encoder": {"position": "theta"}, "linear": {"position": "x", "x_noise": Sensors.x_noise}}
@@ -59,12 +59,8 @@ def input_signal(kind: str, t: np.ndarray, amplitude: float = 3.0, frequency: fl
 
 
 #: s: the period range of the random extend/hold/retract cycles of the Monte Carlo and the
-#: threshold studies. The issue's 20-60 s cycles are NOT drawn: their long strokes let the K_int
-#: and offset estimates wander, and putting them into the studies (session 11: alone, or with
-#: "long stroke" regimes of their own) raised K_int's h to 1.8 sigma s, so that no leak size
-#: reached 95 %. Long strokes have a rule of their own instead (fdi.detect.Thresholds.long_stroke_s:
-#: held out, 11-17 of 100 healthy 20 s runs of such cycles false-alarm, against 20-32 without
-#: it; docs/fdi.md, "Long steady strokes").
+#: threshold studies. The 20-60 s cycles are not drawn: long strokes have a rule of their own
+#: (the thresholds' long_stroke_s; why: docs/fdi-design.md, "Long strokes").
 CYCLE_PERIOD_S = (2.0, 4.0)
 
 
@@ -119,7 +115,6 @@ def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict 
         arr = np.broadcast_to(np.atleast_2d(m_L), (B, T)).astype(float)
         tv["m_L"] = arr[:, :-1]
         truth["m_L"] = arr
-    from sam import initial_state
     p_init = params.copy()
     for name, arr in truth.items():
         p_init[:, P[name]] = arr[:, 0]

@@ -39,7 +39,7 @@ def test_learn_recovers_the_machine_from_a_healthy_cycle():
     """6 s of a healthy extend/retract cycle at 300 kg: each learnt factor is within 3 of its
     posterior std (times SD_INFLATION, the std apply() carries) of the true one, and the two
     mis-rated notches are learnt to better than half their 2 % error."""
-    from fdi.replay import filter_input
+    from fdi.recording import filter_input
 
     cfg = FilterConfig()
     inp, _ = filter_input(_recording("cycle", 300.0, 6.0, seed=3), load_plant())

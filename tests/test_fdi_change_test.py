@@ -11,7 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fdi.detect import Thresholds, cusum
+from fdi import Thresholds
+from fdi.statistics import cusum
 
 DT = 1e-3
 
@@ -73,7 +74,7 @@ def test_long_strokes_mask_in_closed_form():
     rest after it, never the next stroke: +3 V 0-5 s, rest 5-10 s, -3 V 10-15 s, then +3 V
     15-20 s straight away (a reversal) is covered at (2, 7), (12, 15) and (17, 20), so the
     first 2 s of every stroke, also after a reversal, keep the normal drift."""
-    from fdi.detect import long_strokes
+    from fdi.strokes import long_strokes
 
     dt = 0.01
     t = np.arange(2000) * dt
@@ -95,9 +96,9 @@ def test_thresholds_file_memory_is_validated(tmp_path):
         with pytest.raises(ValueError, match="memory_s"):
             Thresholds.load(f)
     f.write_text("[thresholds]\nmemory_s = 0.5\n")
-    assert Thresholds.load(f).memory_s == 0.5
+    assert Thresholds.load(f).test.memory_s == 0.5
     f.write_text("[thresholds]\n")
-    assert Thresholds.load(f).memory_s is None
+    assert Thresholds.load(f).test.memory_s is None
     for bad in ("2.0", "1e9", "\"20\"", "true", "nan"):
         f.write_text(f"[thresholds]\nrun_length_s = {bad}\n")
         with pytest.raises(ValueError, match="run_length_s"):
@@ -123,7 +124,7 @@ def test_thresholds_file_tables_are_validated(tmp_path):
     """The per-hypothesis tables of a thresholds file: a typo in a key, a value that is not a
     positive finite number, a list of the wrong length or a missing hypothesis is named, with
     its table and key, instead of failing later inside the detector (or, for nan, silently)."""
-    from fdi.detect import SHIPPED_THRESHOLDS
+    from fdi.thresholds import SHIPPED_THRESHOLDS
 
     text = SHIPPED_THRESHOLDS.read_text()
     h_int = next(line for line in text.splitlines() if line.startswith('"K_int" = 0'))
@@ -152,7 +153,7 @@ def test_thresholds_file_tables_are_validated(tmp_path):
 def test_the_cusum_memory_is_reported():
     """describe() and the diagnosis name the CUSUM the thresholds were derived for."""
     from sam import load_plant
-    from fdi.detect import diagnose
+    from fdi import diagnose
     from fdi.synth import input_signal, simulate_runs
     from fdi.thresholds import describe
     from fdi import run_filter
@@ -175,33 +176,37 @@ def test_change_residual_spread_follows_the_weights():
     both for all."""
     from dataclasses import replace
     from sam import load_plant
-    from fdi.detect import PARAMS, baseline_values, change_residuals, held
+    from fdi.faults import PARAMS
+    from fdi.statistics import baseline_values, change_residuals
+    from fdi.conditions import held
     from fdi.synth import input_signal, simulate_runs
     from fdi import run_filter
     th = Thresholds.shipped()
-    assert th.filter_sd_weight == {"K_int": 1.0, "K_extA": 0.0, "K_extB": 0.0, "offset": 1.0}
-    assert Thresholds().sd_weight("K_extA") == 1.0
+    assert th.test.filter_sd_weight == {"K_int": 1.0, "K_extA": 0.0, "K_extB": 0.0, "offset": 1.0}
+    assert Thresholds().test.sd_weight("K_extA") == 1.0
     t = np.arange(2501) * DT
     out = run_filter(simulate_runs(load_plant().vector()[None], input_signal("sine", t), DT, seed=3).inp)
-    for weights in (th.filter_sd_weight, {p: 1.0 for p in PARAMS}, {p: 0.5 for p in PARAMS}):
-        th_w = replace(th, filter_sd_weight=weights)
+    for weights in (th.test.filter_sd_weight, {p: 1.0 for p in PARAMS}, {p: 0.5 for p in PARAMS}):
+        th_w = th.with_(filter_sd_weight=weights)
         d, reg, _ = change_residuals(out, th_w)
         base = baseline_values(out, th_w, held(out, th_w))
         k = np.flatnonzero(d["K_extA"][0] != 0.0)[::97]  # armed samples
         assert len(k) > 10
         for i, (p, j) in enumerate(PARAMS.items()):
-            sigma = np.asarray(th.sigma[p])[reg[0, k]]
+            sigma = np.asarray(th.test.sigma[p])[reg[0, k]]
             spread = np.sqrt((weights[p] * out.std[0, k, j]) ** 2 + sigma**2)
             np.testing.assert_allclose(d[p][0, k], (out.mean[0, k, j] - base[0, i]) / spread, rtol=1e-12)
 
 
 def test_restart_relearns_only_the_wandering_baselines():
-    """After a withdrawn alarm the tests restart (detect.restarted_statistics) with the baselines of
-    K_int and the offset re-learnt as the run's mean estimates over the REBASE_S before the restart,
+    """After a withdrawn alarm the tests restart (detect.restarted) with the baselines of
+    K_int and the offset re-learnt as the run's mean estimates over the rebase_s before the restart,
     and those of the external leaks kept: each restarted statistic equals the test run from that
     sample with exactly those baselines; a run not restarted keeps all of its own."""
     from sam import load_plant
-    from fdi.detect import PARAMS, REBASE_PARAMS, REBASE_S, WANDERING, baseline_values, restarted_statistics, statistics
+    from fdi.faults import PARAMS
+    from fdi.statistics import REBASE_PARAMS, baseline_values, restarted, statistics
+    from fdi.conditions import WANDERING
     from fdi.synth import input_signal, simulate_runs
     from fdi import run_filter
     th = Thresholds.shipped()
@@ -210,9 +215,9 @@ def test_restart_relearns_only_the_wandering_baselines():
     params = np.tile(load_plant().vector(), (2, 1))
     out = run_filter(simulate_runs(params, input_signal("sine", t), DT, seed=4).inp)
     start = np.array([4000, 0])
-    got = restarted_statistics(out, th)(start)
+    got = restarted(out, th, start)
     base = baseline_values(out, th)
-    n = int(round(REBASE_S / DT))
+    n = int(round(th.test.rebase_s / DT))
     cols = list(PARAMS.values())
     expected = np.array(base, dtype=float)
     for i, p in enumerate(PARAMS):
@@ -229,7 +234,7 @@ def test_restart_relearns_only_the_wandering_baselines():
 def test_change_spread_is_the_root_sum_of_squares(sd, sigma, w, dw):
     """change_spread over a box of leak-sized spreads (SI): never below the healthy spread nor the
     weighted filter std, at most their sum, sigma itself at w = 0, and growing with w."""
-    from fdi.detect import change_spread
+    from fdi.statistics import change_spread
     s = float(change_spread(np.array(sd), np.array(sigma), w))
     assert s >= sigma and s >= w * sd * (1 - 1e-12) and s <= (sigma + w * sd) * (1 + 1e-12)
     assert float(change_spread(np.array(sd), np.array(sigma), 0.0)) == sigma
@@ -238,12 +243,12 @@ def test_change_spread_is_the_root_sum_of_squares(sd, sigma, w, dw):
 
 def test_tune_runs_last_what_the_level_is_stated_for():
     """Healthy tune runs last the thresholds' run_length_s; fault runs the tune's 4 s."""
-    from dataclasses import replace
-    from fdi.tune import DURATION, run_seconds
+    from fdi.montecarlo import TUNE
+    from fdi.tune import run_seconds
     th = Thresholds.shipped()
-    assert run_seconds(th, None) == th.run_length_s == 20.0
-    assert run_seconds(replace(th, run_length_s=4.0), None) == 4.0
-    assert run_seconds(th, "K_int") == DURATION == 4.0
+    assert run_seconds(th, None) == th.derived.run_length_s == 20.0
+    assert run_seconds(th.with_(run_length_s=4.0), None) == 4.0
+    assert run_seconds(th, "K_int") == TUNE.fault_run_s == 4.0
 
 
 def test_random_input_draws_in_the_order_of_sessions_1_to_10():
@@ -274,19 +279,19 @@ def test_long_healthy_runs_stay_healthy():
     from scipy.stats import binom
 
     from sam import load_plant
-    from fdi.detect import statistics
+    from fdi.statistics import statistics
     from fdi.montecarlo import make_batch
-    from fdi.tune import _bank_decisions
+    from fdi.tune import bank_decisions
     from fdi import FilterConfig, run_filter
 
     th = Thresholds.shipped()
-    assert th.run_length_s == 20.0 and th.memory_s is not None
-    runs = make_batch(load_plant(), 30, 424242, duration=th.run_length_s)
+    assert th.derived.run_length_s == 20.0 and th.test.memory_s is not None
+    runs = make_batch(load_plant(), 30, 424242, duration=th.derived.run_length_s)
     out = run_filter(runs.inp, FilterConfig())
     st = statistics(out, th)
-    triggered = np.any([(g > th.h[h]).any(axis=1) for h, g in st.items()], axis=0)
-    assert triggered.sum() <= binom.isf(0.01, 30, th.trigger_level) == 7
-    stood = _bank_decisions(out, st, th, runs.truth["k_onset"], False)["conf_k"] >= 0
+    triggered = np.any([(g > th.test.h[h]).any(axis=1) for h, g in st.items()], axis=0)
+    assert triggered.sum() <= binom.isf(0.01, 30, th.derived.trigger_level) == 7
+    stood = bank_decisions(out, st, th, runs.truth["k_onset"], False)["conf_k"] >= 0
     assert stood.sum() <= 1
 
 
@@ -307,22 +312,22 @@ def test_shipped_healthy_scenarios_are_healthy_from_the_encoder_alone(scenario):
     the 1e-4 rad encoder floor, the 40 s cycle still did (K_int at 14.8 s)."""
     from sam import Recording, load_plant
     from sam.scenario import load_scenario, run_scenario
-    from fdi.replay import replay
+    from fdi import replay
 
     rec = run_scenario(load_scenario(scenario))
     sig = {k: v for k, v in rec.signals.items() if k != "x"}
-    d = replay(Recording(rec.t, sig, {}, rec.metadata, "s"), load_plant())[3]
+    d = replay(Recording(rec.t, sig, {}, rec.metadata, "s"), load_plant()).diagnosis
     assert d.status == "healthy", d.alarms
 
 
 def test_restarted_tests_relearn_the_baseline():
-    """restarted_statistics: a healthy 5 s run (nominal plant, sine) whose K_int estimate is
+    """restarted: a healthy 5 s run (nominal plant, sine) whose K_int estimate is
     lifted by 1 L/min from 2.5 s on (as if it had wandered there). Restarted at 3.5 s with the old
     baseline the K_int test alarms again at once (within 0.2 s); restarted with the baseline
     re-learnt over the 0.5 s before 3.5 s it stays far below h for the rest of the run; either
     way g is 0 before the run's start."""
     from sam import load_plant
-    from fdi.detect import restarted_statistics, statistics
+    from fdi.statistics import restarted, statistics
     from fdi.synth import input_signal, simulate_runs
     from fdi import K_PER_LPM, FilterConfig, run_filter
     from fdi.states import I_KINT
@@ -335,9 +340,9 @@ def test_restarted_tests_relearn_the_baseline():
     out.mean[:, t >= 2.5, I_KINT] += 1.0 * K_PER_LPM
     start = np.array([3500, 0])
     plain = statistics(out, th, None, start)["K_int"]
-    relearnt = restarted_statistics(out, th)(start)["K_int"]
-    assert (plain[0, 3500:3700] > th.h["K_int"]).any()
-    assert relearnt[0, 3500:].max() < 0.1 * th.h["K_int"]
+    relearnt = restarted(out, th, start)["K_int"]
+    assert (plain[0, 3500:3700] > th.test.h["K_int"]).any()
+    assert relearnt[0, 3500:].max() < 0.1 * th.test.h["K_int"]
     assert not relearnt[0, :3500].any() and not plain[0, :3500].any()
 
 
@@ -353,7 +358,7 @@ def test_reversal_after_a_long_steady_stroke_stays_healthy(tmp_path, seed):
 
     from sam import load_plant
     from sam.scenario import load_scenario, run_scenario
-    from fdi.replay import replay
+    from fdi import replay
 
     plant = Path(__file__).resolve().parents[1] / "scenarios" / "plants" / "sam.toml"
     path = tmp_path / "reversal.toml"
@@ -363,7 +368,7 @@ def test_reversal_after_a_long_steady_stroke_stays_healthy(tmp_path, seed):
                     '[load]\nm_L_kg = 650.0\n[initial]\nx_m = 0.05\n'
                     '[sensors]\npressure_noise_Pa = 20e3\nencoder_quantisation = true\n')
     rec = run_scenario(load_scenario(path)).measured()
-    d = replay(replace(rec, signals={k: v for k, v in rec.signals.items() if k != "x"}), load_plant())[3]
+    d = replay(replace(rec, signals={k: v for k, v in rec.signals.items() if k != "x"}), load_plant()).diagnosis
     assert d.status == "healthy", (d.status, d.isolated, d.detection_time_s)
 
 
@@ -398,12 +403,13 @@ def test_long_cycle_population_reverses_in_mid_stroke_and_on_the_stops():
 
 def test_before_motion_covers_the_initial_rest_and_the_warm_up_after_it():
     """The baseline of a recording that starts at rest is learnt from the first motion on
-    (fdi.detect.before_motion): the samples before the input first leaves the hold band and the
+    (fdi.statistics.before_motion): the samples before the input first leaves the hold band and the
     warm-up after it are excluded, so the tests arm warmup_s + baseline_s after the first motion;
     a recording that starts moving is unchanged, one that never moves arms nothing."""
     from types import SimpleNamespace
 
-    from fdi.detect import before_motion, held, own_baseline
+    from fdi.conditions import before_motion, held
+    from fdi.statistics import own_baseline
 
     th = Thresholds.shipped()
     T = 6000
@@ -418,12 +424,12 @@ def test_before_motion_covers_the_initial_rest_and_the_warm_up_after_it():
     mean[0, :2500, 7] = 5e-9  # what a rest shows: not the baseline of the moving machine
     out = SimpleNamespace(t=t, u=u, mean=mean, std=np.ones_like(mean), inp=None)
     bm = before_motion(out, th)
-    warm = int(round(th.warmup_s / DT))
+    warm = int(round(th.window.warmup_s / DT))
     assert bm[0, : 2000 + warm].all() and not bm[0, 2000 + warm:].any()
     assert bm[1, :warm].all() and not bm[1, warm:].any() and bm[2].all()
     base, ready = own_baseline(out, th, held(out, th))
     first_armed = np.argmax(ready[:, 0], axis=1)
-    n_base = int(round(th.baseline_s / DT))
+    n_base = int(round(th.window.baseline_s / DT))
     assert first_armed[0] == 2000 + warm + n_base and first_armed[1] == warm + n_base and not ready[2].any()
     assert base[0, 0] == pytest.approx(1e-10, rel=0.01)  # the rest's 5e-9 is not in it
     assert np.all(before_motion(SimpleNamespace(t=t, u=None, mean=mean), th) == False)  # noqa: E712
@@ -440,13 +446,13 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     from dataclasses import replace
 
     from sam import load_plant
-    from fdi import detect, tune
+    import fdi.statistics
+    from fdi import FilterConfig, run_filter, tune
     from fdi.montecarlo import make_batch
-    from fdi import FilterConfig, run_filter
 
     th = Thresholds.shipped()
     picks = {300001: 21, 300002: 18, 300004: 20}
-    parts = [make_batch(load_plant(), 25, seed, duration=th.run_length_s, inputs="long_cycles").inp
+    parts = [make_batch(load_plant(), 25, seed, duration=th.derived.run_length_s, inputs="long_cycles").inp
              for seed in picks]
     rows = list(picks.values())
     inp = replace(parts[0], **{k: np.stack([getattr(p, k)[b] for p, b in zip(parts, rows)])
@@ -455,23 +461,24 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     k_end = np.full(3, len(out.t) - 1)
 
     def stood():
-        return tune._bank_decisions(out, detect.statistics(out, th), th, k_end, False)["conf_k"] >= 0
+        return tune.bank_decisions(out, fdi.statistics.statistics(out, th), th, k_end, False)["conf_k"] >= 0
 
     assert not stood().any()
-    monkeypatch.setattr(detect, "before_motion", lambda out, th: np.zeros(out.mean.shape[:2], dtype=bool))
+    monkeypatch.setattr(fdi.statistics, "before_motion", lambda out, th: np.zeros(out.mean.shape[:2], dtype=bool))
     assert stood()[:2].all()
 
 
-def test_internal_leak_test_is_held_where_the_chamber_pressures_balance(monkeypatch):
+def test_internal_leak_test_is_held_where_the_chamber_pressures_balance():
     """A leak across the piston flows with the root of p_A - p_B, so where the pressures balance
     it carries nothing and K_int's estimate is free (measured: a 4 s retraction at 187 kg with
     p_A = p_B crept it 0.02 -> 0.77 L/min and false-alarmed). K_int's test is held exactly where
-    |p_A - p_B| < BALANCE_MARGIN_PA (fdi.detect.balanced); the other tests are not. An estimate
+    |p_A - p_B| < balance_margin_Pa (fdi.conditions.balanced); the other tests are not. An estimate
     creeping up inside such a stretch alarms with the hold off and not with it."""
     from types import SimpleNamespace
 
-    from fdi import detect
-    from fdi.detect import BALANCE_MARGIN_PA, PARAMS, held, statistics
+    from fdi.faults import PARAMS
+    from fdi.conditions import held
+    from fdi.statistics import statistics
     from fdi.synth import lpm
     from fdi import FilterConfig
 
@@ -490,6 +497,5 @@ def test_internal_leak_test_is_held_where_the_chamber_pressures_balance(monkeypa
     h = held(out, th)
     assert np.array_equal(np.flatnonzero(h[0, list(PARAMS).index("K_int")]), np.arange(3000, 7000))
     assert not h[0, [i for i, p in enumerate(PARAMS) if p != "K_int"]].any()
-    assert BALANCE_MARGIN_PA > 0 and (statistics(out, th)["K_int"] <= th.h["K_int"]).all()
-    monkeypatch.setattr(detect, "BALANCE_MARGIN_PA", 0.0)
-    assert (statistics(out, th)["K_int"] > th.h["K_int"]).any()
+    assert th.regimes.balance_margin_Pa > 0 and (statistics(out, th)["K_int"] <= th.test.h["K_int"]).all()
+    assert (statistics(out, th.with_(balance_margin_Pa=0.0))["K_int"] > th.test.h["K_int"]).any()

@@ -1,16 +1,16 @@
-"""The notch-flow trigger of fdi.detect (session 25): a jump of a notch-flow calibration state,
+"""The notch-flow trigger of fdi.statistics: a jump of a notch-flow calibration state,
 in its own std, is an alarm that the likelihood bank then names or withdraws."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from fdi.detect import HYPOTHESES, NOTCH_STATES, NOTCH_TRIGGER, Thresholds, notch_jump, statistics
-from fdi import FilterConfig
+from fdi import FilterConfig, Thresholds
+from fdi.faults import HYPOTHESES, NOTCH_STATES, NOTCH_TRIGGER
+from fdi.statistics import notch_jump, statistics
 from fdi.states import N_AUG
 
 DT = 1e-3
@@ -29,7 +29,7 @@ def _output(T: int, step_at: int, step: float, sd: float, state: str = "Q_N_AT")
 def test_a_notch_state_step_is_a_jump_of_its_size_in_std_for_one_window(state):
     """A step of 0.04 with std 0.005 is a jump of 8 std, less the 1-sigma drift: 7, on exactly the
     window's samples after the step, 0 elsewhere."""
-    th = Thresholds(drift=1.0, notch_jump_window_s=0.2)
+    th = Thresholds().with_(drift=1.0, notch_jump_window_s=0.2)
     out = _output(1000, 500, 0.04, 0.005, state)
     s = notch_jump(out, th, np.ones((1, 1000), dtype=bool))[0]
     w = 200
@@ -38,7 +38,7 @@ def test_a_notch_state_step_is_a_jump_of_its_size_in_std_for_one_window(state):
 
 
 def test_the_jump_is_zero_where_not_armed_and_before_a_restart():
-    th = Thresholds(drift=1.0, notch_jump_window_s=0.2)
+    th = Thresholds().with_(drift=1.0, notch_jump_window_s=0.2)
     out = _output(1000, 500, 0.04, 0.005)
     armed = np.ones((1, 1000), dtype=bool)
     armed[0, 550:600] = False
@@ -51,9 +51,8 @@ def test_the_jump_is_zero_where_not_armed_and_before_a_restart():
 
 
 def test_the_trigger_runs_only_with_its_threshold_and_the_likelihood_bank():
-    """Files before session 25 have no notch_flow threshold: their statistics are the five CUSUMs.
-    With the threshold the trigger joins them, but not for the signature isolation, which names
-    the first alarm's hypothesis (the trigger has none)."""
+    """A thresholds file without a notch_flow threshold gives the five CUSUMs only; with the
+    threshold the trigger joins them."""
     from sam import load_plant
 
     from fdi.montecarlo import make_batch
@@ -62,9 +61,9 @@ def test_the_trigger_runs_only_with_its_threshold_and_the_likelihood_bank():
     runs = make_batch(load_plant(), 1, 7, fault=None, size=0.0, duration=2.0, onset=1.0)
     th = Thresholds.shipped()
     out = run_filter(runs.inp, FilterConfig())
-    old = replace(th, h={k: v for k, v in th.h.items() if k in HYPOTHESES})
+    old = th.with_(h={k: v for k, v in th.test.h.items() if k in HYPOTHESES})
     assert set(statistics(out, old)) == set(HYPOTHESES)
-    assert set(statistics(out, replace(old, h={**old.h, NOTCH_TRIGGER: 3.0}))) == set(HYPOTHESES) | {NOTCH_TRIGGER}
+    assert set(statistics(out, old.with_(h={**old.test.h, NOTCH_TRIGGER: 3.0}))) == set(HYPOTHESES) | {NOTCH_TRIGGER}
 
 
 def test_thresholds_file_notch_entry_is_validated(tmp_path):
@@ -72,16 +71,21 @@ def test_thresholds_file_notch_entry_is_validated(tmp_path):
 
     th = Thresholds.shipped()
     good = tmp_path / "good.toml"
-    good.write_text(to_toml(replace(th, h={**th.h, NOTCH_TRIGGER: 3.0})))
-    assert Thresholds.load(good).h[NOTCH_TRIGGER] == 3.0
+    good.write_text(to_toml(th.with_(h={**th.test.h, NOTCH_TRIGGER: 3.0})))
+    assert Thresholds.load(good).test.h[NOTCH_TRIGGER] == 3.0
     bad = tmp_path / "bad.toml"
-    bad.write_text(to_toml(replace(th, h={**th.h, NOTCH_TRIGGER: -1.0})))
+    bad.write_text(good.read_text().replace('"notch_flow" = 3.0', '"notch_flow" = -1.0'))
     with pytest.raises(ValueError, match=r"'h\.notch_flow' = -1\.0 is not"):
         Thresholds.load(bad)
     window = tmp_path / "window.toml"
-    window.write_text(to_toml(replace(th, notch_jump_window_s=0.0)))
+    window.write_text(good.read_text().replace("notch_jump_window_s = 0.2", "notch_jump_window_s = 0.0"))
     with pytest.raises(ValueError, match="'notch_jump_window_s' = 0.0 is not a window in seconds"):
         Thresholds.load(window)
+    # the same checks on the values themselves, not only on load
+    with pytest.raises(ValueError, match=r"'h\.notch_flow' = -1\.0 is not"):
+        th.with_(h={**th.test.h, NOTCH_TRIGGER: -1.0})
+    with pytest.raises(ValueError, match="'notch_jump_window_s' = 0.0 is not a window in seconds"):
+        th.with_(notch_jump_window_s=0.0)
 
 
 def test_an_offset_the_notch_states_absorb_is_found_by_the_trigger():
@@ -89,11 +93,11 @@ def test_an_offset_the_notch_states_absorb_is_found_by_the_trigger():
     500132, run 12: 413 kg, the nuisance box drawn) moves the notch-flow states at once, while the
     offset estimate hardly moves: no CUSUM alarms within 1 s of the onset (the first at 1.85 s
     after it). The notch-flow trigger alarms within 0.1 s, and the bank names offset- within the
-    second. With a thresholds file of before session 25 (no trigger) the run is not found within
-    the second: the session-24 tune's miss."""
+    second. With a thresholds file without the trigger the run is not found within the second."""
     from sam import load_plant
 
-    from fdi.detect import diagnose, first_alarm
+    from fdi import diagnose
+    from fdi.alarms import first_alarm
     from fdi.montecarlo import make_batch
     from fdi.tune import draw_onsets
     from fdi import run_filter
@@ -106,13 +110,13 @@ def test_an_offset_the_notch_states_absorb_is_found_by_the_trigger():
     out = run_filter(runs.inp, FilterConfig())
     st = statistics(out, th)
     second = k0 + 1000
-    cusum_first = [int(first_alarm(st[h][b:b + 1], th.h[h])[0]) for h in HYPOTHESES]
+    cusum_first = [int(first_alarm(st[h][b:b + 1], th.test.h[h])[0]) for h in HYPOTHESES]
     assert all(k < 0 or k > second for k in cusum_first)
-    k_notch = int(first_alarm(st[NOTCH_TRIGGER][b:b + 1], th.h[NOTCH_TRIGGER])[0])
+    k_notch = int(first_alarm(st[NOTCH_TRIGGER][b:b + 1], th.test.h[NOTCH_TRIGGER])[0])
     assert k0 <= k_notch <= k0 + 100
     d = diagnose(out, th, b, st)
     assert d.isolated == ["offset-"] and d.isolation_time_s <= out.t[second]
-    old = replace(th, h={k: v for k, v in th.h.items() if k in HYPOTHESES})
+    old = th.with_(h={k: v for k, v in th.test.h.items() if k in HYPOTHESES})
     d_old = diagnose(out, old, b, statistics(out, old))
     assert d_old.isolation_time_s is None or d_old.isolation_time_s > out.t[second]
 

@@ -1,5 +1,5 @@
 """Pinned pressures (stall, end stop): which change tests are held, and the baseline that
-skips them (fdi.detect.pinned, held, baseline_window; docs/fdi-history.md, "Session 9")."""
+skips them (fdi.conditions.pinned, held, baseline_window)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sam import P, load_plant
-from fdi.detect import (MIN_BASELINE_S, PARAMS, Thresholds, baseline_window, diagnose, held, held_on_stop,
-                        pinned, resting_on_stop)
-from fdi.synth import simulate_runs
-from fdi import POS_X, FilterInput, FilterOutput, leak_lpm, run_filter
+from fdi import POS_X, FilterInput, FilterOutput, Thresholds, diagnose, leak_lpm, run_filter
+from fdi.conditions import baseline_window, held, held_on_stop, pinned, resting_on_stop
+from fdi.faults import PARAMS
 from fdi.states import I_KEXTA
+from fdi.synth import simulate_runs
 
 DT = 1e-3
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
@@ -88,18 +88,19 @@ def test_the_long_stall_still_needs_the_hold():
     L/min; session 22, with volume conserved at the stops, 0.23 L/min at 54 s; its more sensitive
     K_extA test also triggers at 17 s when nothing is held, withdrawn by the bank)."""
     from sam.scenario import load_scenario, run_scenario
-    from fdi.replay import replay
+    from fdi import replay
 
     root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
     rec = run_scenario(load_scenario(root / "healthy_cycle_60s_800kg.toml"))
     th = Thresholds.shipped()
-    out, _, _, diagnosis, _ = replay(rec, load_plant(), thresholds=th)
+    r = replay(rec, load_plant(), thresholds=th)
+    out, diagnosis = r.output, r.diagnosis
     assert diagnosis.status == "healthy"
-    assert leak_lpm(out.mean[0, out.t >= th.warmup_s, I_KEXTA]).max() < 0.25
-    for memory in (th.memory_s, None):
+    assert leak_lpm(out.mean[0, out.t >= th.window.warmup_s, I_KEXTA]).max() < 0.25
+    for memory in (th.test.memory_s, None):
         # the long-stroke rule off too: this is about what the pinned hold alone does
-        unheld = replay(rec, load_plant(), thresholds=replace(th, pin_margin_Pa=NO_PINNING, memory_s=memory,
-                                                              long_stroke_s=None))[3]
+        unheld = replay(rec, load_plant(), thresholds=th.with_(pin_margin_Pa=NO_PINNING, memory_s=memory,
+                                                              long_stroke_s=None)).diagnosis
         assert any(k.startswith("offset") for k in unheld.alarms)
 
 
@@ -108,11 +109,11 @@ def test_fed_chamber_leak_is_still_seen_in_a_stall():
     made up through the open P->A notch at a pressure drop dp_N (Q / (Q_N x_s))^2, 17 kPa for
     0.5 L/min: K_extA is NOT held there. The shipped 800 kg scenario (stalled from 0.4 to 2.3 s,
     step at 2.0 s) is detected within 0.2 s and sized 0.5 L/min."""
-    from fdi.replay import replay
+    from fdi import replay
     from sam.scenario import load_scenario, run_scenario
 
     rec = run_scenario(load_scenario(SCENARIOS / "extA_0p5lpm_step_800kg.toml"))
-    *_, d, _ = replay(rec, load_plant())
+    d = replay(rec, load_plant()).diagnosis
     assert d.status == "fault" and d.isolated == ["K_extA"]
     assert 2.0 <= d.detection_time_s < 2.2
     assert d.size["K_extA"]["value"] == pytest.approx(0.5, abs=0.05)
@@ -152,8 +153,8 @@ def test_reference_baseline_skips_what_the_pinned_reference_hides(monkeypatch):
     is put in: the filter's K_extA estimate is raised by 0.5 L/min wherever the pinned
     pressures hide it."""
     from sam import Recording
-    from fdi import replay as replay_module
-    from fdi.detect import PARAMS
+    from fdi import offline as replay_module
+    from fdi.faults import PARAMS
     from fdi import K_PER_LPM, FilterConfig, leak_lpm
 
     th = Thresholds.shipped()
@@ -178,22 +179,22 @@ def test_reference_baseline_skips_what_the_pinned_reference_hides(monkeypatch):
 @given(hidden=st.lists(st.booleans(), min_size=10, max_size=120), split=st.integers(0, 60))
 def test_baseline_window_skips_hidden_samples(hidden, split):
     """For any hidden pattern: the baseline never uses a hidden sample; with at least
-    MIN_BASELINE_S of visible samples in [warmup, warmup + baseline_s] it is exactly those,
+    min_baseline_s of visible samples in [warmup, warmup + baseline_s] it is exactly those,
     armed at the window's end; otherwise it is the first baseline_s of visible samples after
     the warm-up, armed from the last of them on (never, if there are not that many)."""
     dt = 0.05
-    th = replace(Thresholds.shipped(), warmup_s=0.5, baseline_s=1.0)
+    th = Thresholds.shipped().with_(warmup_s=0.5, baseline_s=1.0)
     h = np.array(hidden + [False] * split + hidden, dtype=bool)  # visible stretches in between
     t = np.arange(len(h)) * dt
     w, ready = (a[0, 0] for a in baseline_window(t, h[None, None, :], th))
     assert not (w & h).any()
-    window = (t >= th.warmup_s) & (t < th.warmup_s + th.baseline_s)
-    n_base = int(round(th.baseline_s / dt))
-    if (window & ~h).sum() * dt >= MIN_BASELINE_S:
+    window = (t >= th.window.warmup_s) & (t < th.window.warmup_s + th.window.baseline_s)
+    n_base = int(round(th.window.baseline_s / dt))
+    if (window & ~h).sum() * dt >= th.window.min_baseline_s:
         assert np.array_equal(w, window & ~h)
-        assert np.array_equal(ready, t >= th.warmup_s + th.baseline_s)
+        assert np.array_equal(ready, t >= th.window.warmup_s + th.window.baseline_s)
         return
-    visible = np.flatnonzero((t >= th.warmup_s) & ~h)
+    visible = np.flatnonzero((t >= th.window.warmup_s) & ~h)
     assert np.array_equal(np.flatnonzero(w), visible[:n_base])
     if len(visible) >= n_base:  # armed from the sample after the last baseline sample
         armed = visible[n_base - 1] + 1

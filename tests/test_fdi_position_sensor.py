@@ -11,10 +11,10 @@ import pytest
 
 from sam import load_plant
 from sam.scenario import load_scenario, run_scenario
-from fdi.detect import SHIPPED_BY_SENSOR, Thresholds
-from fdi.replay import detect_position_sensor, filter_input, replay
+from fdi import POS_THETA, POS_X, Thresholds, replay
+from fdi.recording import detect_position_sensor, filter_input
 from fdi.synth import POSITION_SENSORS, simulate_runs
-from fdi import POS_THETA, POS_X
+from fdi.thresholds import SHIPPED_BY_SENSOR
 from fdi.states import I_X
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
@@ -73,7 +73,7 @@ def test_each_sensor_has_a_shipped_file():
     assert set(POSITION_SENSORS) == set(SHIPPED_BY_SENSOR) == set(SENSORS)
     for sensor, path in SHIPPED_BY_SENSOR.items():
         assert path.exists()
-        assert Thresholds.shipped(sensor).position_sensor == sensor
+        assert Thresholds.shipped(sensor).derived.position_sensor == sensor
 
 
 def test_linear_sensor_noise_is_simulated():
@@ -99,12 +99,12 @@ def test_replay_picks_the_thresholds_of_the_sensor(cycle, linear_x):
     the sensor and the command that derives thresholds for it."""
     plant = load_plant()
     linear = _with_x(cycle, linear_x)
-    d = replay(linear, plant)[3]
+    d = replay(linear, plant).diagnosis
     assert d.thresholds["position_sensor"] == "linear" and d.filter_health["position_sensor"] == "linear"
     assert "position_sensor_warning" not in d.filter_health
-    enc = replay(replace(cycle, signals={k: v for k, v in cycle.signals.items() if k != "x"}), plant)[3]
+    enc = replay(replace(cycle, signals={k: v for k, v in cycle.signals.items() if k != "x"}), plant).diagnosis
     assert enc.thresholds["position_sensor"] == "encoder"
-    mixed = replay(linear, plant, thresholds=Thresholds.shipped("encoder"))[3]
+    mixed = replay(linear, plant, thresholds=Thresholds.shipped("encoder")).diagnosis
     assert "--position-sensor linear" in mixed.filter_health["position_sensor_warning"]
     assert "derived for the encoder position sensor" in mixed.note
 
@@ -119,14 +119,13 @@ def test_thresholds_file_names_a_known_sensor(tmp_path):
 def test_threshold_studies_simulate_the_sensor():
     """The studies' runs read the position of the thresholds' sensor: theta from the encoder, or
     x with the linear sensor's white noise (each row's own draw; the pressures as for the encoder)."""
-    from fdi import thresholds as T
+    from fdi.study import StudyDesign, study_runs
 
-    plant = load_plant()
-    T._init(plant.vector())
-    params = np.tile(plant.vector(), (2, 1))
+    nominal = load_plant().vector()
+    params = np.tile(nominal, (2, 1))
     exp, noise = np.array([0.1, 0.1]), np.array([0.2, 0.3])  # one experiment, two noise draws
-    enc = T._run_rows(params, exp, noise, Thresholds.shipped("encoder"))
-    lin = T._run_rows(params, exp, noise, Thresholds.shipped("linear"))
+    enc = study_runs(params, exp, noise, nominal, StudyDesign(position_sensor="encoder"))
+    lin = study_runs(params, exp, noise, nominal, StudyDesign(position_sensor="linear"))
     assert enc.inp.pos_kind == POS_THETA and lin.inp.pos_kind == POS_X
     np.testing.assert_array_equal(enc.inp.pA, lin.inp.pA)
     x_filter = lin.mean[:, :, I_X]  # the filter's x follows the sensor to within its noise
@@ -163,17 +162,17 @@ def test_cli_names_the_sensor_and_warns_on_another(cycle, linear_x, tmp_path, ca
 def test_thresholds_and_tune_simulate_the_sensor(tmp_path, monkeypatch):
     """`fdi thresholds --position-sensor linear` derives for that sensor, and the tune's runs are
     simulated with the sensor of its thresholds file (the calls, captured)."""
-    from fdi import montecarlo, thresholds, tune
+    from fdi import cli, montecarlo, tune
     from samfdi.cli import main
 
     seen = {}
 
-    def fake_compute(plant, **kw):
-        seen["thresholds"] = kw["position_sensor"]
-        return Thresholds.shipped(kw["position_sensor"]), {}
+    def fake_compute(plant, design, **kw):
+        seen["thresholds"] = design.position_sensor
+        return Thresholds.shipped(design.position_sensor), {}
 
-    monkeypatch.setattr(thresholds, "compute_thresholds", fake_compute)
-    monkeypatch.setattr(thresholds, "write_thresholds", lambda th, rep, out: [])
+    monkeypatch.setattr(cli, "compute_thresholds", fake_compute)
+    monkeypatch.setattr(cli, "write_thresholds", lambda th, rep, out: [])
     assert main(["fdi", "thresholds", "--position-sensor", "linear", "--out", str(tmp_path / "th")]) == 0
     assert seen["thresholds"] == "linear"
 
@@ -183,5 +182,5 @@ def test_thresholds_and_tune_simulate_the_sensor(tmp_path, monkeypatch):
 
     monkeypatch.setattr(tune, "make_batch", fake_batch)
     with pytest.raises(RuntimeError, match="captured"):
-        tune._chunk_job(load_plant(), Thresholds.shipped("linear"), None, 0.0, 2, 1)
+        tune.chunk_job(load_plant(), Thresholds.shipped("linear"), None, 0.0, 2, 1)
     assert seen["tune"] == "linear" and montecarlo.make_batch is not fake_batch

@@ -12,10 +12,10 @@ import pytest
 
 from sam import Recording, load_plant, write_recording
 from samfdi.cli import main
-from fdi.detect import Thresholds, diagnose, statistics
-from fdi.montecarlo import make_batch
+from fdi import Thresholds, diagnose, run_filter
+from fdi.montecarlo import TUNE, make_batch
+from fdi.statistics import statistics
 from fdi.synth import input_signal, lpm, profile, simulate_runs
-from fdi import run_filter
 
 DT = 1e-3
 
@@ -75,21 +75,22 @@ def test_a_long_recording_is_tested_to_its_end_whatever_its_withdrawn_alarms(mon
     whose steady strokes trigger withdrawn alarms, with a 0.5 L/min K_extA leak from 55 s, and
     the fixed floor lowered to 1 (as if a long record had used up the old cap of 30) still
     finds the leak; with the old fixed cap it was called healthy."""
-    from fdi import isolate
-    from fdi.replay import replay
+    from fdi import replay
+    from fdi.bank import BankDesign
+    from fdi.isolation import max_episodes
 
     p = load_plant().vector()
     t = np.arange(60001) * DT
     u = input_signal("sine", t, amplitude=3.0, frequency=1 / 40)
     r = simulate_runs(p[None], u, DT, faults={"K_extA": profile("step", lpm(0.5), t, t0=55.0)[None]})
     rec = Recording(t, {"u": u, "pA": r.inp.pA[0], "pB": r.inp.pB[0], "theta": r.inp.pos[0]})
-    monkeypatch.setattr(isolate, "MAX_EPISODES", 1)
-    assert isolate.max_episodes(len(t), DT) == 61
-    d = replay(rec, load_plant())[3]
+    design = BankDesign(max_episodes=1)
+    assert max_episodes(len(t), DT, design) == 61
+    d = replay(rec, load_plant(), design=design).diagnosis
     assert len([a for a in d.likelihood["withdrawn_alarms_s"] if a < 55.0]) >= 2  # the premise
     assert d.status == "fault" and d.isolated == ["K_extA"] and 55.0 < d.detection_time_s < 56.0
-    monkeypatch.setattr(isolate, "max_episodes", lambda n, dt: 1)  # the fixed cap, as before
-    assert replay(rec, load_plant())[3].status == "healthy"
+    monkeypatch.setattr("fdi.diagnosis.max_episodes", lambda n, dt, design: 1)  # the fixed cap, as before
+    assert replay(rec, load_plant()).diagnosis.status == "healthy"
 
 def test_sampling_rate_must_match_the_thresholds(leak_csv, tmp_path, capsys):
     """sigma and h depend on the sampling rate (the 1 kHz thresholds give 12 % false alarms at
@@ -107,7 +108,7 @@ def test_sampling_rate_must_match_the_thresholds(leak_csv, tmp_path, capsys):
     assert main(["fdi", "replay", str(tmp_path / "half.csv"), "--out", str(tmp_path / "o")]) == 2
     assert "samfdi fdi thresholds --sample-rate 500" in capsys.readouterr().err
     assert [model_substeps(dt) for dt in (1e-3, 1.0005e-3, 2e-3, 2.008e-3, 5e-3, 0.5e-3)] == [1, 1, 2, 2, 5, 1]
-    th500 = replace(Thresholds.shipped(), sample_dt_s=2e-3)
+    th500 = Thresholds.shipped().with_(sample_dt_s=2e-3)
     d = fdi.replay_recording(half, load_plant(), tmp_path / "h", thresholds=th500, figure=False)
     assert d.isolated == ["K_extA"] and d.size["K_extA"]["value"] == pytest.approx(1.0, abs=0.15)
 
@@ -140,7 +141,7 @@ def test_tune_refuses_thresholds_for_another_rate(tmp_path, capsys):
     from fdi.thresholds import to_toml
     from dataclasses import replace
     path = tmp_path / "th500.toml"
-    path.write_text(to_toml(replace(Thresholds.shipped(), sample_dt_s=2e-3)))
+    path.write_text(to_toml(Thresholds.shipped().with_(sample_dt_s=2e-3)))
     assert main(["fdi", "tune", "--runs", "5", "--thresholds", str(path), "--out", str(tmp_path / "t")]) == 2
     assert "1000 Hz only" in capsys.readouterr().err and not (tmp_path / "t").exists()
 
@@ -149,13 +150,13 @@ def test_threshold_studies_sample_like_the_logger():
     """The studies simulate at 1 ms and filter what a logger sampling every 2 ms records."""
     from dataclasses import replace
 
-    from fdi import thresholds as T
-    T._init(load_plant().vector())
-    th = replace(Thresholds.shipped(), sample_dt_s=2e-3)
-    out = T._run_rows(np.tile(load_plant().vector(), (2, 1)), np.array([0.1, 0.5]), np.array([0.2, 0.3]), th)
-    assert out.inp.dt == pytest.approx(2e-3) and out.mean.shape[1] == int(round(T.DURATION / 2e-3)) + 1
+    from fdi.study import StudyDesign, study_runs
+    design = StudyDesign(sample_dt_s=2e-3)
+    nominal = load_plant().vector()
+    out = study_runs(np.tile(nominal, (2, 1)), np.array([0.1, 0.5]), np.array([0.2, 0.3]), nominal, design)
+    assert out.inp.dt == pytest.approx(2e-3) and out.mean.shape[1] == int(round(design.leak_run_s / 2e-3)) + 1
     with pytest.raises(ValueError, match="whole multiple"):
-        T.compute_thresholds(load_plant(), N_leak=4, N_nuisance=4, sample_dt_s=1.5e-3)
+        StudyDesign(n_leak=4, n_nuisance=4, sample_dt_s=1.5e-3)
 
 
 def test_replay_never_reads_truth(leak_csv, tmp_path):
@@ -331,15 +332,15 @@ def test_small_leak_mid_run_detected_and_isolated():
 
 def test_thresholds_file_round_trip_and_rule(tmp_path):
     """The shipped thresholds come from the GSA rule; the TOML writer round-trips."""
-    from fdi.detect import REGIMES
+    from fdi.faults import REGIMES
     from fdi.thresholds import to_toml
     th = Thresholds.shipped()
-    assert "GSA" in th.source
+    assert "GSA" in th.derived.source
     # the five CUSUMs and, since session 25, the notch-flow trigger
-    assert set(th.h) == {"K_int", "K_extA", "K_extB", "offset+", "offset-", "notch_flow"}
-    for p_, s in th.sigma.items():
+    assert set(th.test.h) == {"K_int", "K_extA", "K_extB", "offset+", "offset-", "notch_flow"}
+    for p_, s in th.test.sigma.items():
         assert len(s) == len(REGIMES) and all(v > 0 for v in s)
-        assert any(th.votes[p_])
+        assert any(th.test.votes[p_])
     path = tmp_path / "t.toml"
     path.write_text(to_toml(th))
     assert Thresholds.load(path) == th
@@ -348,9 +349,9 @@ def test_thresholds_file_round_trip_and_rule(tmp_path):
 def test_h_is_the_gumbel_quantile_of_healthy_maxima():
     """The threshold rule's quantile: a Gumbel fitted by moments to per-run maxima drawn from a
     known Gumbel (loc 2, scale 0.5) returns that Gumbel's 0.998 quantile, 2 - 0.5 ln(-ln 0.998)."""
-    from fdi.thresholds import _gumbel_quantile
+    from fdi.study import gumbel_quantile
     x = np.random.default_rng(7).gumbel(2.0, 0.5, 20_000)
-    assert _gumbel_quantile(x, 0.998) == pytest.approx(2.0 - 0.5 * np.log(-np.log(0.998)), rel=0.02)
+    assert gumbel_quantile(x, 0.998) == pytest.approx(2.0 - 0.5 * np.log(-np.log(0.998)), rel=0.02)
 
 
 def test_threshold_rule_is_the_level_quantile_of_the_healthy_maxima():
@@ -358,16 +359,16 @@ def test_threshold_rule_is_the_level_quantile_of_the_healthy_maxima():
     maxima both are within 10 % of the true quantile; a spiky sample (1 % of runs at 5, the rest
     at 0), whose Gumbel fit falls below its empirical quantile, gets the empirical one."""
     from scipy import stats
-    from fdi.thresholds import _gumbel_quantile, level_threshold
+    from fdi.study import gumbel_quantile, level_threshold
     rng = np.random.default_rng(3)
     m = rng.gumbel(50.0, 20.0, 352)
     h = level_threshold(m, 1 - 0.0025)
-    assert h == pytest.approx(max(_gumbel_quantile(m, 1 - 0.0025), np.quantile(m, 1 - 0.0025)))
+    assert h == pytest.approx(max(gumbel_quantile(m, 1 - 0.0025), np.quantile(m, 1 - 0.0025)))
     assert h == pytest.approx(stats.gumbel_r(50.0, 20.0).ppf(1 - 0.0025), rel=0.10)
     assert h <= m.max()
     spiky = np.r_[np.zeros(990), np.full(10, 5.0)]  # 1 % of runs at 5: the 0.998 quantile is 5
     assert level_threshold(spiky, 1 - 0.002) == pytest.approx(5.0)
-    assert _gumbel_quantile(spiky, 0.998) < 5.0
+    assert gumbel_quantile(spiky, 0.998) < 5.0
 
 
 @pytest.mark.slow
@@ -392,7 +393,7 @@ def test_thresholds_files_of_retired_options_are_refused(tmp_path):
     """A thresholds file of an option that was retired (another filter, the GLR detector,
     signature isolation) is refused in one line that says so; the keys those files carried are
     accepted with the one value still supported. The shipped file round-trips through to_toml."""
-    from fdi.detect import SHIPPED_THRESHOLDS
+    from fdi.thresholds import SHIPPED_THRESHOLDS
     from fdi.thresholds import to_toml
     th = Thresholds.shipped()
     path = tmp_path / "t.toml"
@@ -481,7 +482,7 @@ def test_tune_onsets_seeded_uniform_on_grid_and_windows_per_run():
     g[0, 1999] = 2.0  # run 0 (onset 2.0 s): just before its onset
     g[1, 1500 + 1000] = 3.0  # run 1 (onset 1.5 s): the last sample of its 1 s window
     g[1, 2501] = 5.0  # and just after that window
-    w = tune._window_maxima({"K_int": g}, SimpleNamespace(h={h: 1.0 for h in tune.HYP}), np.array([2000, 1500]))
+    w = tune.window_maxima({"K_int": g}, SimpleNamespace(test=SimpleNamespace(h={h: 1.0 for h in tune.HYP})), np.array([2000, 1500]))
     i = tune.HYP.index("K_int")
     np.testing.assert_array_equal(w["max"][:, i, 0], [2.0, 0.0])
     np.testing.assert_array_equal(w["max"][:, i, 1], [0.0, 3.0])
@@ -499,7 +500,7 @@ def test_tune_analyse_scores_each_run_from_its_own_onset(tmp_path):
     n, H = 4, len(tune.HYP)
     ki = tune.HYP.index("K_int")
     jobs = [("healthy", None, 0.0, n, 1000)] + [(f"{f}_{s:g}", f, s, n, 500_000)
-                                                  for f, sizes in tune.FAULT_SIZES.items() for s in sizes]
+                                                  for f, sizes in TUNE.fault_sizes.items() for s in sizes]
     chunk_dir = tmp_path / "chunks"
     chunk_dir.mkdir()
     for j in jobs:
@@ -513,11 +514,11 @@ def test_tune_analyse_scores_each_run_from_its_own_onset(tmp_path):
         if j[0] in ("K_int_0.5", "K_int_1", "K_extA_0.5"):  # every run isolated 1 ms after its onset
             first[:, tune.HYP.index(j[1])] = 1501
             iso_h[:] = tune.HYP.index(j[1])
-        np.savez(tune._chunk_path(chunk_dir, j), first=first, max=np.zeros((n, H, 3)),
+        np.savez(tune.chunk_path(chunk_dir, j), first=first, max=np.zeros((n, H, 3)),
                  m_L=np.array([100., 300, 600, 700]), k_onset=k_on, iso_h=iso_h,
                  iso_k=np.where(iso_h >= 0, first.max(axis=1), -1), conf_k=first.max(axis=1),
                  n_withdrawn=np.zeros(n, dtype=np.int64))
-    m = tune.analyse(tmp_path, jobs, th)
+    m = tune.summarise(tmp_path, jobs, th)
     row = next(r for r in m["rows"] if r["fault"] == "K_int" and r["size"] == 0.25)
     assert row["alarm_before_onset"] == 0.25  # run 0
     assert row["detected_within_1s"] == 0.5  # runs 1 (1 ms) and 2 (100 ms)
@@ -530,7 +531,7 @@ def test_tune_analyse_scores_each_run_from_its_own_onset(tmp_path):
     # loads 100 / 300 / 600 / 700 kg: the 267-534 kg third has one K_int 0.25 run, isolated: 100 %
     assert m["smallest_detected_and_isolated_95pct_within_1s_by_load"]["K_int"] == [0.5, 0.25, 0.5]
     assert "uniform in [1.5, 2.5] s" in (tmp_path / "metrics.md").read_text()
-    assert str(tune._chunk_path(chunk_dir, jobs[0])).endswith(f"_{tune.CHUNK_VERSION}.npz")
+    assert str(tune.chunk_path(chunk_dir, jobs[0])).endswith(f"_{tune.CHUNK_VERSION}.npz")
 
 
 def test_tune_chunk_job_random_onsets_real_runs():
@@ -539,7 +540,7 @@ def test_tune_chunk_job_random_onsets_real_runs():
     from fdi import tune
     plant, th = load_plant(), Thresholds.shipped()
     seed = 500_000 + 10_000
-    res = tune._chunk_job(plant, th, "K_extA", 1.0, 4, seed)
+    res = tune.chunk_job(plant, th, "K_extA", 1.0, 4, seed)
     k0 = np.round(tune.draw_onsets(4, seed) / 1e-3).astype(int)
     np.testing.assert_array_equal(res["k_onset"], k0)
     assert len(set(k0)) == 4
@@ -553,28 +554,30 @@ def test_vote_rules_follow_the_sensitivity_studies():
     """compute_thresholds at a tiny size: a residual votes exactly where the fault's share of it
     over the leakage box is >= VOTE_SNR healthy spreads (read back from the report of the same
     studies); h is set for the trigger level asked for."""
-    from fdi import thresholds as T
+    from fdi.study import StudyDesign, compute_thresholds
+    from fdi.thresholds import describe
     plant = load_plant()
-    for trigger in (T.TRIGGER_LEVEL, 0.3):
-        th, rep = T.compute_thresholds(plant, N_leak=4, N_nuisance=4, run_length_s=4.0, trigger_level=trigger)
+    for trigger in (StudyDesign.trigger_level, 0.3):
+        design = StudyDesign(n_leak=4, n_nuisance=4, run_length_s=4.0, trigger_level=trigger)
+        th, rep = compute_thresholds(plant, design)
         # h is set for the trigger level: at most that fraction of the study's own healthy runs
         # alarms (each h is at least the empirical 1 - level/6 quantile of its maxima: the five
         # CUSUMs and the notch-flow trigger, whose h the same studies set)
-        assert th.trigger_level == trigger and rep["healthy_trigger_fraction"] <= trigger
-        assert "notch_flow" in th.h and "notch_flow" in rep["healthy_maxima_quantiles"]
-        assert f"CUSUM alarms at {trigger:g} per run" in T.describe(th)
-        for p_, votes in th.votes.items():
-            expect = [s >= T.VOTE_SNR for s in rep["votes_snr_own"][p_]]
+        assert th.derived.trigger_level == trigger and rep["healthy_trigger_fraction"] <= trigger
+        assert "notch_flow" in th.test.h and "notch_flow" in rep["healthy_maxima_quantiles"]
+        assert f"CUSUM alarms at {trigger:g} per run" in describe(th)
+        for p_, votes in th.test.votes.items():
+            expect = [s >= design.vote_snr for s in rep["votes_snr_own"][p_]]
             if any(expect):  # (a hypothesis is never silenced: then it votes where it shows most)
                 assert votes == expect, p_
             assert all(np.isfinite(rep["votes_snr_own"][p_]))
-        assert th.memory_s == T.MEMORY_S and th.run_length_s == 4.0 and "healthy runs 4 s" in th.source
+        assert th.test.memory_s == design.memory_s and th.derived.run_length_s == 4.0 and "healthy runs 4 s" in th.derived.source
     with pytest.raises(ValueError, match="trigger_level"):
-        T.compute_thresholds(plant, N_leak=4, N_nuisance=4, trigger_level=0.001)
+        StudyDesign(n_leak=4, n_nuisance=4, trigger_level=0.001)
     with pytest.raises(ValueError, match="memory_s"):
-        T.compute_thresholds(plant, N_leak=4, N_nuisance=4, memory_s=0.0)
+        StudyDesign(n_leak=4, n_nuisance=4, memory_s=0.0)
     with pytest.raises(ValueError, match="run_length_s"):
-        T.compute_thresholds(plant, N_leak=4, N_nuisance=4, run_length_s=1.0)
+        StudyDesign(n_leak=4, n_nuisance=4, run_length_s=1.0)
 
 
 @pytest.mark.parametrize("drop", ["theta", "x"])
@@ -585,12 +588,12 @@ def test_a_quarter_litre_leak_out_of_a_is_named_within_a_second(drop):
     spread, and the alarm came 2.2 s after the onset (docs/fdi.md, "The change residual's
     spread")."""
     from sam.scenario import load_scenario, run_scenario
-    from fdi.replay import replay
+    from fdi import replay
 
     root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
     rec = run_scenario(load_scenario(root / "extA_0p25lpm_step.toml"))
     sig = {k: v for k, v in rec.signals.items() if k != drop}
-    d = replay(Recording(rec.t, sig, {}, rec.metadata, "test"), load_plant())[3]
+    d = replay(Recording(rec.t, sig, {}, rec.metadata, "test"), load_plant()).diagnosis
     assert d.status == "fault" and d.isolated == ["K_extA"]
     assert 2.0 < d.detection_time_s <= d.isolation_time_s <= 3.0
     size = d.size["K_extA"]

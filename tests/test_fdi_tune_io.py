@@ -1,6 +1,6 @@
 """`samfdi fdi tune` as a user meets it: the folder it resumes (manifest, damaged chunks,
 the user's own files), bad --out / --scheduler, and what metrics.md / metrics.json / roc.png
-say. The Monte Carlo itself is replaced by hand-made seeded chunks (tune._chunk_job
+say. The Monte Carlo itself is replaced by hand-made seeded chunks (tune.chunk_job
 monkeypatched), so each test takes well under a second or two."""
 
 from __future__ import annotations
@@ -12,9 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fdi import rates, tune
+from fdi import metrics, rates, tune
+from fdi.montecarlo import TUNE
 from fdi.montecarlo import LEAKS, leak_flow_lpm, make_batch
-from fdi.detect import SHIPPED_THRESHOLDS, Thresholds
+from fdi.thresholds import SHIPPED_THRESHOLDS
+from fdi import Thresholds
 from sam import UserError, load_plant
 from samfdi.cli import build_parser, main
 
@@ -27,7 +29,7 @@ def _fake_chunk(plant, th, fault, size, n, seed, inputs="standard", reference=Fa
     except that in K_int 0.5 L/min the bank names K_extA in run 0 (a wrong isolation)."""
     rng = np.random.default_rng(seed)
     H = len(tune.HYP)
-    k0 = np.round(tune.draw_onsets(n, seed) / tune.DT).astype(np.int64)
+    k0 = np.round(tune.draw_onsets(n, seed) / TUNE.dt).astype(np.int64)
     first = np.full((n, H), -1, dtype=np.int64)
     iso_h = np.full(n, -1, dtype=np.int64)
     if fault is not None:
@@ -55,7 +57,7 @@ def calls(monkeypatch):
         made.append(args[2:7])
         return _fake_chunk(*args)
 
-    monkeypatch.setattr(tune, "_chunk_job", fake)
+    monkeypatch.setattr(tune, "chunk_job", fake)
     return made
 
 
@@ -69,7 +71,7 @@ def test_resume_refuses_a_folder_made_with_other_settings(tmp_path, calls, capsy
     line naming the folder and what differs, before anything is computed."""
     out = tmp_path / "t"
     assert _tune(out) == 0
-    n_jobs = len(tune._jobs(N_RUNS))
+    n_jobs = len(tune.jobs_of(N_RUNS))
     assert len(calls) == n_jobs == 1 + 1 + 17
     man = json.loads((out / "tune.json").read_text())
     assert man["runs"] == N_RUNS and man["layout"] == tune.CHUNK_VERSION
@@ -116,7 +118,7 @@ def test_folder_from_before_the_manifest_is_resumed_and_checked(tmp_path, calls)
     assert not (out / "tune.json").exists()  # the refused settings are not written down as the folder's
     th = Thresholds.shipped()
     with pytest.raises(UserError, match="other thresholds"):
-        tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False, thresholds=replace(th, drift=2 * th.drift))
+        tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False, thresholds=th.with_(drift=2 * th.test.drift))
     assert len(calls) == n
 
 
@@ -126,8 +128,8 @@ def test_damaged_chunk_is_reported_and_recomputed(tmp_path, calls):
     out = tmp_path / "t"
     tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
     rows0 = json.loads((out / "metrics.json").read_text())["rows"]
-    job = tune._jobs(N_RUNS)[3]
-    path = tune._chunk_path(out / "chunks", job)
+    job = tune.jobs_of(N_RUNS)[3]
+    path = tune.chunk_path(out / "chunks", job)
     with open(path, "r+b") as f:
         f.truncate(500)
     n = len(calls)
@@ -194,10 +196,10 @@ def test_users_files_are_not_overwritten_without_force(tmp_path, calls, capsys):
 
 def _hand_made_folder(tmp_path: Path, bound: bool) -> tuple:
     """A tune folder of hand-made chunks (one per job of N_RUNS runs): (jobs, tag)."""
-    jobs, tag = tune._jobs(N_RUNS), tune._tag(False, bound)
+    jobs, tag = tune.jobs_of(N_RUNS), tune.mode_tag(False, bound)
     (tmp_path / "chunks").mkdir()
     for j in jobs:
-        np.savez(tune._chunk_path(tmp_path / "chunks", j, tag), **_fake_chunk(None, None, *j[1:], bound=bound))
+        np.savez(tune.chunk_path(tmp_path / "chunks", j, tag), **_fake_chunk(None, None, *j[1:], bound=bound))
     return jobs, tag
 
 
@@ -206,12 +208,12 @@ def test_metrics_json_is_valid_json_with_wrong_isolation(tmp_path):
     has no mean delay) and gives the wrong isolations: 1 of the 5 K_int 0.5 L/min runs, all
     detected within 1 s, was named K_extA -> 0.2; overall 1 of the 16 detected cases x 5 runs."""
     jobs, tag = _hand_made_folder(tmp_path, False)
-    path = tune._chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "K_extB_0.1"), tag)
+    path = tune.chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "K_extB_0.1"), tag)
     d = dict(np.load(path))
     for key in ("first", "conf_k", "iso_h", "iso_k"):  # never alarmed: no delay to average
         d[key][:] = -1
     np.savez(path, **d)
-    tune.analyse(tmp_path, jobs, Thresholds.shipped(), tag)
+    tune.summarise(tmp_path, jobs, Thresholds.shipped(), tag)
     text = (tmp_path / "metrics.json").read_text()
     m = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in metrics.json"))
     rows = {(r["fault"], r["size"]): r for r in m["rows"]}
@@ -229,21 +231,21 @@ def test_withdrawn_alarms_are_not_false_alarms(tmp_path):
     after the onset is not detected within 1 s, whatever its CUSUM did."""
     jobs, tag = _hand_made_folder(tmp_path, False)
     healthy = [j for j in jobs if j[0] == "healthy"]
-    path = tune._chunk_path(tmp_path / "chunks", healthy[0], tag)
+    path = tune.chunk_path(tmp_path / "chunks", healthy[0], tag)
     d = dict(np.load(path))
     d["max"][:3, 0, 2] = 2.0  # three CUSUM alarms ...
     d["conf_k"][0] = 5000  # ... one of which the bank confirmed
     np.savez(path, **d)
-    path = tune._chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "K_extA_1"), tag)
+    path = tune.chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "K_extA_1"), tag)
     d = dict(np.load(path))
     d["conf_k"][0] = d["k_onset"][0] + 1500
     np.savez(path, **d)
-    path = tune._chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "healthy_long"), tag)
+    path = tune.chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "healthy_long"), tag)
     d = dict(np.load(path))
     d["max"][:2, 1, 2] = 1.5  # the long cycles: two CUSUM alarms, both confirmed
     d["conf_k"][:2] = 9000
     np.savez(path, **d)
-    m = tune.analyse(tmp_path, jobs, Thresholds.shipped(), tag)
+    m = tune.summarise(tmp_path, jobs, Thresholds.shipped(), tag)
     n, n_long = m["healthy_runs"], m["long_cycles"]["runs"]
     assert (n, n_long) == (N_RUNS, tune.long_cycle_runs(N_RUNS))
     assert m["false_alarm_rate"] == pytest.approx(1 / n) and m["trigger_rate"] == pytest.approx(3 / n)
@@ -263,7 +265,7 @@ def test_withdrawn_alarms_are_not_false_alarms(tmp_path):
            f"{lo:.4f}-{hi:.4f}; <= 0.01: not met)" in md
     k = row["isolated_runs"]
     assert k == round(row["isolated_within_1s"] * row["runs"]) and row["isolated_ci"] == list(rates.interval(k, row["runs"]))
-    assert row["isolated_verdict"] == rates.verdict(k, row["runs"], tune.TARGET_RATE)
+    assert row["isolated_verdict"] == rates.verdict(k, row["runs"], TUNE.target_rate)
 
 
 def test_isolation_by_the_flow_the_leak_passed(tmp_path):
@@ -271,8 +273,8 @@ def test_isolation_by_the_flow_the_leak_passed(tmp_path):
     L/min fall in the 0.05-0.1, 0.15-0.25, 0.25-0.5 and 0.5-1 L/min bins, 5 runs each, and the
     one wrong isolation (K_int 0.5 L/min) is missing from its bin; offsets have no flow."""
     jobs, tag = _hand_made_folder(tmp_path, False)
-    m = tune.analyse(tmp_path, jobs, Thresholds.shipped(), tag)
-    assert m["flow_bins_lpm"] == tune.FLOW_BINS_LPM and set(m["isolated_by_flow"]) == set(LEAKS)
+    m = tune.summarise(tmp_path, jobs, Thresholds.shipped(), tag)
+    assert m["flow_bins_lpm"] == TUNE.flow_bins_lpm and set(m["isolated_by_flow"]) == set(LEAKS)
     assert m["isolated_by_flow"]["K_int"] == [[0, 0], [5, 5], [0, 0], [5, 5], [4, 5], [5, 5], [0, 0]]
     row = next(r for r in m["rows"] if (r["fault"], r["size"]) == ("K_extB", 0.25))
     assert row["leak_flow_median_lpm"] == pytest.approx(0.15)
@@ -303,7 +305,7 @@ def test_metrics_md_tables_with_units_and_no_exclusive_column(tmp_path):
     'wrong isolation' column and overall line, the smallest sizes as tables in L/min and %
     (also the bound's)."""
     jobs, tag = _hand_made_folder(tmp_path, True)
-    m = tune.analyse(tmp_path, jobs, Thresholds.shipped(), tag)
+    m = tune.summarise(tmp_path, jobs, Thresholds.shipped(), tag)
     md = (tmp_path / "metrics.md").read_text()
     assert "exclusive" not in md and "{'" not in md
     header = next(line for line in md.splitlines() if line.startswith("| fault | size | runs"))
@@ -327,9 +329,9 @@ def test_roc_curves_are_distinguishable(tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
     monkeypatch.setattr(plt, "close", lambda fig=None: None)  # keep the figure to look at it
-    names = [f"{f}_{s:g}" for f, sizes in tune.FAULT_SIZES.items() for s in sizes]
+    names = [f"{f}_{s:g}" for f, sizes in TUNE.fault_sizes.items() for s in sizes]
     roc = {"false_alarm": [0.0, 0.5, 1.0], "detection": {n: [0.1, 0.5, 0.9] for n in names}}
-    tune._roc_figure(tmp_path / "roc.png", roc)
+    metrics.roc_figure(tmp_path / "roc.png", roc)
     lines = plt.gcf().axes[0].get_lines()
     plt.close("all")
     assert len(lines) == 17
@@ -350,11 +352,11 @@ def test_worker_pool_after_a_simulation_in_the_same_process(tmp_path):
     make_batch(plant, 2, 1, duration=0.1)  # the simulator's parallel loop runs in this process
     assert pool_context().get_start_method() == "spawn"
     jobs = [("healthy", None, 0.0, 2, 1000, "standard"), ("K_extA_1", "K_extA", 1.0, 2, 510_000, "standard")]
-    th4 = replace(th, run_length_s=4.0)
-    tune._compute(plant, th4, tmp_path, jobs, jobs, "t", 2, None, False, False, False)
+    th4 = th.with_(run_length_s=4.0)
+    tune.compute_chunks(plant, th4, tmp_path, jobs, jobs, "t", 2, None, False, False, False)
     for job in jobs:
-        with np.load(tune._chunk_path(tmp_path, job, "t")) as got:
-            here = tune._chunk_job(plant, th4, *job[1:])
+        with np.load(tune.chunk_path(tmp_path, job, "t")) as got:
+            here = tune.chunk_job(plant, th4, *job[1:])
             assert set(got.files) == set(here)
             for key in here:
                 np.testing.assert_array_equal(got[key], here[key], err_msg=f"{job[0]} {key}")
@@ -369,19 +371,19 @@ def test_help_states_the_workers_and_runs_rules():
     assert "max(5, N // 5) per fault type and size" in helps["runs"] and "max(5, N // 2) more" in helps["runs"]
     assert "force" in helps
     for n in (5, 10, 24, 25, 26, 230):
-        per_case = sum(j[3] for j in tune._jobs(n) if j[0] == "K_int_0.25")
-        assert per_case == max(5, n // 5) and sum(j[3] for j in tune._jobs(n) if j[0] == "healthy") == n
-        assert sum(j[3] for j in tune._jobs(n) if j[0] == "healthy_long") == max(5, n // 2)
+        per_case = sum(j[3] for j in tune.jobs_of(n) if j[0] == "K_int_0.25")
+        assert per_case == max(5, n // 5) and sum(j[3] for j in tune.jobs_of(n) if j[0] == "healthy") == n
+        assert sum(j[3] for j in tune.jobs_of(n) if j[0] == "healthy_long") == max(5, n // 2)
 
 
 def test_smallest_size_needs_every_larger_size_and_runs():
     """A size is met only when it and every larger tested size reach 95 %; a load third with no
     runs of a size (rate NaN) is not a pass."""
-    from fdi.tune import _smallest
+    from fdi.metrics import smallest_met
     rows = [{"size": s, "r": r} for s, r in ((0.1, 1.0), (0.25, 0.96), (0.5, 0.97), (1.0, 0.99))]
     passes = lambda r: r["r"] >= 0.95  # noqa: E731  as the tune's rule for the point rate
-    assert _smallest(rows, passes) == 0.1
+    assert smallest_met(rows, passes) == 0.1
     rows[2]["r"] = 0.9  # 0.5 fails: 0.1 and 0.25 passing below it are lucky draws
-    assert _smallest(rows, passes) == 1.0
+    assert smallest_met(rows, passes) == 1.0
     rows[3]["r"] = float("nan")  # no 1 L/min runs in this third
-    assert _smallest(rows, passes) is None
+    assert smallest_met(rows, passes) is None

@@ -1,0 +1,257 @@
+"""Offline replay of one recording (``samfdi fdi replay``): the stages end to end, the files and
+the figure.
+
+recording (checked: :mod:`fdi.recording`) -> filter (:func:`fdi.filter.run_filter`, calibrated
+on a healthy reference recording if one is given: :mod:`fdi.calibration`) -> diagnosis
+(:func:`fdi.diagnosis.diagnose`) -> estimates.csv, residuals.csv, diagnosis.json, replay.png.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from sam import Plant, Recording, UserError
+from sam.errors import output_folder
+
+from . import calibration
+from .bank import DESIGN, BankDesign
+from .conditions import held
+from .config import FilterConfig
+from .diagnosis import Diagnosis, diagnose, shown_statistics
+from .faults import HYPOTHESES, PARAMS
+from .filter import FilterOutput, run_filter
+from .recording import at_thresholds_rate, check_duration, check_observable, detect_position_sensor, filter_input
+from .states import STATE_NAMES, leak_lpm
+from .statistics import residuals, statistics
+from .thresholds import Thresholds
+
+OUTPUT_FILES = ("estimates.csv", "residuals.csv", "diagnosis.json", "replay.png")
+FIGURE_CLIP = 5.0  #: the replay figure shows statistic / threshold up to this
+
+
+@dataclass(frozen=True)
+class Replay:
+    """A replayed recording: the filter's output, the residuals and statistics the detector ran
+    (restarted after withdrawn alarms), the diagnosis."""
+
+    output: FilterOutput
+    residuals: dict  #: name -> (1, T)
+    statistics: dict  #: test -> (1, T)
+    diagnosis: Diagnosis
+
+
+def learn_reference(ref: Recording, plant: Plant, cfg: FilterConfig, *,
+                    drop_out_of_range: bool = False) -> calibration.Calibration:
+    """The machine constants (notch flows, bulk modulus) that ``cfg``'s calibration states learn
+    on a healthy reference recording of the same machine (:mod:`fdi.calibration`)."""
+    name = str(ref.source or "reference recording")
+    inp, _ = filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)
+    cal = calibration.learn(run_filter(inp, cfg), cfg)
+    if not cal.factor:
+        raise UserError(f"{name}: --reference: the filter of these thresholds calibrates none of "
+                        f"{', '.join(calibration.MACHINE_STATES)}, so a reference has nothing to teach it")
+    return cal
+
+
+def reference_baseline(ref: Recording, plant: Plant, th: Thresholds, cfg: FilterConfig,
+                       cal: calibration.Calibration | None = None, *, drop_out_of_range: bool = False) -> np.ndarray:
+    """(1, 4) healthy baseline of the fault estimates from a reference recording of the same
+    machine: the mean of each over the reference's second half (filtered with the calibration
+    ``cal`` if the replay uses one), where its test is not held (the whole reference if its
+    second half holds it)."""
+    name = str(ref.source or "reference recording")
+    inp, _ = filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)
+    out = run_filter(*(calibration.apply(inp, cfg, cal) if cal is not None else (inp, cfg)))
+    seen = ~held(out, th)[0]  # (4, T)
+    second = np.arange(out.mean.shape[1]) >= out.mean.shape[1] // 2
+    base = []
+    for i, (param, j) in enumerate(PARAMS.items()):
+        w = seen[i] & second if (seen[i] & second).any() else seen[i]
+        if not w.any():
+            raise UserError(f"{name}: --baseline: the pressures are pinned to supply and tank throughout, "
+                            f"so {param} is never observable there; record a reference in motion")
+        base.append(out.mean[0, w, j].mean())
+    return np.array([base])
+
+
+def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None, thresholds: Thresholds | None = None,
+           drop_out_of_range: bool = False, baseline: Recording | np.ndarray | None = None,
+           reference: Recording | None = None, plant_name: str = "plant", position_sensor: str | None = None,
+           design: BankDesign = DESIGN) -> Replay:
+    """Filter one recording and diagnose it.
+
+    ``thresholds``: None, the shipped file of the recording's position sensor (``position_sensor``,
+    or when None the one :func:`fdi.recording.detect_position_sensor` finds); a file derived for
+    another sensor is used, with a warning in the diagnosis' note. ``reference``: a healthy
+    recording of the same machine whose learnt notch flows and bulk modulus replace the plant
+    file's. ``baseline``: a healthy recording whose estimates are the change tests' baseline
+    (for a fault present from the start), or (1, 4) baseline values; default: the recording's own
+    estimates over its baseline window. ``plant_name``: how messages name the plant; ``design``:
+    the likelihood bank's (:class:`fdi.bank.BankDesign`)."""
+    sensor = position_sensor or detect_position_sensor(rec, plant)
+    thresholds = Thresholds.shipped(sensor) if thresholds is None else thresholds
+    cfg = FilterConfig() if cfg is None else cfg
+    rec, k = at_thresholds_rate(rec.measured(), thresholds)  # never the true_* columns
+    inp, report = filter_input(rec, plant, drop_out_of_range=drop_out_of_range, position_sensor=sensor)
+    health = report.to_dict()
+    if k > 1:
+        health["decimated_by"] = k
+    check_duration(rec, thresholds, own_baseline=baseline is None)
+    check_observable(inp, plant, plant_name, str(rec.source or "the recording"))
+    cal = None
+    if reference is not None:
+        cal = learn_reference(at_thresholds_rate(reference, thresholds)[0], plant, cfg,
+                              drop_out_of_range=drop_out_of_range)
+        health["calibrated_from_reference"] = cal.to_json()
+    if isinstance(baseline, Recording):
+        baseline = reference_baseline(at_thresholds_rate(baseline, thresholds)[0], plant, thresholds, cfg, cal,
+                                      drop_out_of_range=drop_out_of_range)
+    if cal is not None:
+        inp, cfg = calibration.apply(inp, cfg, cal)
+    out = run_filter(inp, cfg)
+    out = replace(out, t=rec.t - rec.t[0])
+    diag = diagnose(out, thresholds, 0, statistics(out, thresholds, baseline), baseline, design=design)
+    health["position_sensor"] = sensor
+    note = diag.note
+    if thresholds.derived.position_sensor != sensor:
+        warning = (f"the thresholds were derived for the {thresholds.derived.position_sensor} position sensor, but "
+                   f"the recording's position reads as the {sensor} one: their false-alarm level does not hold "
+                   f"(derive thresholds with `samfdi fdi thresholds --position-sensor {sensor}`)")
+        health["position_sensor_warning"] = warning
+        note = f"{note}; {warning}" if note else warning
+    diag = replace(diag, filter_health={**diag.filter_health, **health}, note=note)
+    return Replay(out, residuals(out, thresholds, baseline), shown_statistics(out, thresholds, diag, baseline), diag)
+
+
+def replay_recording(rec: Recording, plant: Plant, out_dir, *, force: bool = False,
+                     thresholds: Thresholds | None = None, drop_out_of_range: bool = False, figure: bool = True,
+                     baseline=None, reference=None, plant_name: str = "plant",
+                     position_sensor: str | None = None) -> Diagnosis:
+    """Replay a recording (:func:`replay`) and write estimates.csv, residuals.csv, diagnosis.json
+    and replay.png into out_dir (an existing file only with ``force``)."""
+    out_dir = output_folder(out_dir, OUTPUT_FILES, force, create=False)
+    sensor = position_sensor or detect_position_sensor(rec, plant)
+    thresholds = Thresholds.shipped(sensor) if thresholds is None else thresholds
+    r = replay(rec, plant, thresholds=thresholds, drop_out_of_range=drop_out_of_range, baseline=baseline,
+               reference=reference, plant_name=plant_name, position_sensor=sensor)
+    output_folder(out_dir)
+    t = r.output.t + rec.t[0]  # the samples filtered (every k-th of a faster recording)
+    _write_estimates(out_dir / "estimates.csv", t, r.output)
+    _write_residuals(out_dir / "residuals.csv", t, r.residuals, r.statistics, thresholds)
+    (out_dir / "diagnosis.json").write_text(r.diagnosis.to_json() + "\n")
+    if figure:
+        _figure(out_dir / "replay.png", t, r, thresholds)
+    return r.diagnosis
+
+
+def _write_estimates(path: Path, t, out: FilterOutput) -> None:
+    cols = {"t": t}
+    for name in ("K_int", "K_extA", "K_extB"):
+        j = STATE_NAMES.index(name)
+        m, s = out.mean[0, :, j], out.std[0, :, j]
+        cols[name] = m
+        cols[f"{name}_lo2s"] = m - 2 * s
+        cols[f"{name}_hi2s"] = m + 2 * s
+        cols[f"{name}_Lpm"] = leak_lpm(m)
+        cols[f"{name}_Lpm_lo2s"] = leak_lpm(m - 2 * s)
+        cols[f"{name}_Lpm_hi2s"] = leak_lpm(m + 2 * s)
+    for name in ("offset", "F_d", "v", "p_A", "p_B", "x"):
+        j = STATE_NAMES.index(name)
+        m, s = out.mean[0, :, j], out.std[0, :, j]
+        cols[name] = m
+        cols[f"{name}_lo2s"] = m - 2 * s
+        cols[f"{name}_hi2s"] = m + 2 * s
+    write_csv(path, cols)
+
+
+def _write_residuals(path: Path, t, res: dict, stats: dict, th: Thresholds) -> None:
+    cols = {"t": t}
+    for k, v in res.items():
+        cols[k] = v[0]
+    for h, g in stats.items():
+        cols[f"cusum_{h}"] = g[0]
+        cols[f"threshold_{h}"] = np.full(len(t), th.test.h[h])
+    write_csv(path, cols)
+
+
+def write_csv(path: Path, cols: dict) -> None:
+    """Columns (name -> (T,) array) as CSV, each value as '%.17g' (reads back to the same
+    float64; 'nan' where undefined): np.savetxt, measured the fastest of the writers tried."""
+    names = list(cols)
+    data = np.column_stack([np.asarray(cols[n], dtype=float) for n in names])
+    np.savetxt(path, data, fmt="%.17g", delimiter=",", header=",".join(names), comments="")
+
+
+def _alarm_lines(diag: Diagnosis) -> list:
+    """(time [s], axvline style) of the alarms to mark: the alarm that stood (red) and the
+    withdrawn ones (grey, dashed); without the bank every hypothesis' first alarm."""
+    lik = diag.likelihood
+    if "withdrawn_alarms_s" not in lik:
+        return [(ta, {"color": "r", "lw": 0.8}) for ta in diag.alarms.values()]
+    lines = [(ta, {"color": "0.5", "lw": 0.8, "ls": "--"}) for ta in lik["withdrawn_alarms_s"]]
+    if lik.get("alarm_s") is not None and lik.get("confirmed_s") is not None:
+        lines.append((lik["alarm_s"], {"color": "r", "lw": 0.8}))
+    return lines
+
+
+def _figure(path: Path, t, r: Replay, th: Thresholds) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out, res, stats, diag = r.output, r.residuals, r.statistics, r.diagnosis
+    fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
+    ax = axes[0]
+    for name, c in zip(("K_int", "K_extA", "K_extB"), ("C0", "C1", "C2")):
+        j = STATE_NAMES.index(name)
+        m, s = leak_lpm(out.mean[0, :, j]), leak_lpm(out.std[0, :, j])
+        ax.plot(t, m, c, label=name)
+        ax.fill_between(t, m - 2 * s, m + 2 * s, color=c, alpha=0.2)
+    ax.set_ylabel("leak [L/min at 10 MPa]")
+    ax.legend(loc="upper left")
+    ax2 = axes[1]
+    j = STATE_NAMES.index("offset")
+    m, s = 100 * out.mean[0, :, j], 100 * out.std[0, :, j]
+    ax2.plot(t, m, "C3", label="offset")
+    ax2.fill_between(t, m - 2 * s, m + 2 * s, color="C3", alpha=0.2)
+    ax2.set_ylabel("offset [% travel]")
+    ax2.legend(loc="upper left")
+    ax3 = axes[2]
+    h = th.test.h
+    for i, (name, g) in enumerate(stats.items()):
+        ax3.plot(t, g[0] / h[name], f"C{i}", label=f"CUSUM {name} / h" if name in HYPOTHESES else f"{name} jump / h")
+    ax3.axhline(1.0, color="k", ls="--", label="threshold")
+    # a real fault drives g/h to hundreds or thousands: clip, so that the threshold stays readable
+    top = max((float(np.nanmax(g[0] / h[name])) for name, g in stats.items()), default=1.0)
+    ax3.set_ylim(0.0, min(max(2.0, 1.1 * top), FIGURE_CLIP))
+    if top > FIGURE_CLIP:
+        ax3.text(0.99, 0.97, f"clipped at {FIGURE_CLIP:g} (max {top:.3g})", transform=ax3.transAxes,
+                 ha="right", va="top", fontsize=8)
+    if "pinned" in res and res["pinned"][0].any():  # stalled / end stop: some tests held
+        ax3.fill_between(t, 0, 1, where=res["pinned"][0] > 0, transform=ax3.get_xaxis_transform(),
+                         color="0.85", label="pinned at supply / tank (tests held)")
+    if "long_stroke" in res and res["long_stroke"][0].any():  # K_int / offset tests count only large excursions
+        ax3.fill_between(t, 0, 1, where=res["long_stroke"][0] > 0, transform=ax3.get_xaxis_transform(),
+                         color="C9", alpha=0.12,
+                         label=f"long stroke (K_int, offset: drift {th.test.long_stroke_drift:g} sigma)")
+    ax3.set_ylabel("statistic / threshold")
+    ax3.set_xlabel("t [s]")
+    ax3.legend(loc="upper left", fontsize=8)
+    for ta, style in _alarm_lines(diag):
+        for a in axes:
+            a.axvline(ta, **style)
+    if diag.likelihood.get("withdrawn_alarms_s"):
+        ax3.plot([], [], color="0.5", lw=0.8, ls="--", label="withdrawn alarm (the bank saw no fault; tests restarted)")
+        ax3.legend(loc="upper left", fontsize=8)
+    title = f"diagnosis: {diag.status} {', '.join(diag.isolated)}"
+    if diag.isolation_time_s is not None:  # the likelihood bank's decision
+        for a in axes:
+            a.axvline(diag.isolation_time_s, color="k", lw=1.2, ls=":")
+        title += f" (isolated by likelihood at {diag.isolation_time_s:.2f} s, dotted)"
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -1,0 +1,241 @@
+"""The first stage: a recording, checked, becomes the filter's input.
+
+Only a recording's measured columns are ever used (:meth:`sam.Recording.measured`). A sample
+outside what the sensors or the plant's stroke allow is refused in one line (or, on request,
+made a missing sample); a recording too short, too coarse or sampled at another rate than its
+thresholds is refused with what to do; a plant file under which a fault could not show is refused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sam import P, Plant, Recording, UserError, initial_state, simulate_batch
+from sam.geometry import joint_angle, piston_position
+from sam.measurement import ENCODER_RESOLUTION_RAD
+
+from .filter import FilterInput, model_substeps
+from .states import K_PER_LPM, POS_THETA, POS_X
+from .thresholds import Thresholds
+
+
+@dataclass(frozen=True)
+class InputChecks:
+    """What a recording must satisfy before the filter sees it."""
+
+    pressure_range_Pa: tuple = (0.0, 25e6)  #: the SAM's pressure sensors
+    range_margin_Pa: float = 0.5e6  #: noise around the range's ends that is still accepted
+    #: m: how far a position may stray outside the plant's stroke (sensor zero and noise); further
+    #: out the recording and the plant file describe different machines
+    position_margin_m: float = 0.005
+    #: Hz: the coarsest sampling accepted; detection fades with the rate (thresholds derived for it
+    #: keep the false alarms at their level) and below this nothing is left
+    min_sample_rate_Hz: float = 100.0
+    rate_tolerance: float = 0.01  #: relative: a recording's step against its thresholds' (1 % clock jitter)
+    #: pulses of theta per window in which an x's phases on the encoder grid are summed
+    #: (:func:`encoder_grid_coherence`): local, so that a slightly wrong geometry keeps the grid
+    encoder_grid_window: int = 50
+    #: an x with at least this coherence was computed from the encoder (1 on the grid, about
+    #: 1 / sqrt(samples per window) for a continuous reading)
+    encoder_grid_coherence: float = 0.6
+    #: Pa: a fault of a clear size (1 L/min at 10 MPa, 2 %) must move the chamber pressures by more
+    #: than this (the sensor noise) under the recording's input, or the plant is refused
+    observable_Pa: float = 20e3
+    observability_s: float = 2.0  #: s: of the recording's input simulated for that check
+
+
+CHECKS = InputChecks()
+
+
+@dataclass(frozen=True)
+class InputReport:
+    """What the checks found in a recording (part of diagnosis.json's filter_health)."""
+
+    samples: int
+    dt_s: float
+    position: str  #: the position column filtered: "x" or "theta"
+    supply_pressure_measured: bool
+    out_of_range_samples: int  #: samples made missing by --drop-out-of-range
+    ignored_optional_columns: list
+    u_gaps_held: int = 0  #: missing input samples held at the last value
+
+    def to_dict(self) -> dict:
+        d = {"samples": self.samples, "dt_s": self.dt_s, "position": self.position,
+             "supply_pressure_measured": self.supply_pressure_measured,
+             "out_of_range_samples": self.out_of_range_samples, "ignored_optional_columns": self.ignored_optional_columns}
+        if self.u_gaps_held:
+            d["u_gaps_held"] = self.u_gaps_held
+        return d
+
+
+def encoder_grid_coherence(x: np.ndarray, plant: Plant, checks: InputChecks = CHECKS) -> float:
+    """How closely positions x (T,) [m], turned back into joint angles with the plant's geometry,
+    sit on the encoder's grid of pulses, 0-1: the mean resultant length of their phases on the
+    grid, summed over windows of ``encoder_grid_window`` pulses; 0 when no sample maps to an angle."""
+    p = plant.vector()
+    x = np.asarray(x, dtype=float)
+    theta = joint_angle(x[np.isfinite(x)], p[P.L_1], p[P.L_2], p[P.L_3])
+    phase = theta[np.isfinite(theta)] / ENCODER_RESOLUTION_RAD  # in pulses
+    if not len(phase):
+        return 0.0
+    _, window = np.unique(np.floor(phase / checks.encoder_grid_window), return_inverse=True)
+    z = np.exp(2j * np.pi * phase)
+    resultant = np.bincount(window, z.real) + 1j * np.bincount(window, z.imag)
+    return float(np.abs(resultant).sum() / len(phase))
+
+
+def detect_position_sensor(rec: Recording, plant: Plant, checks: InputChecks = CHECKS) -> str:
+    """The position sensor of a recording (fdi.thresholds.SHIPPED_BY_SENSOR): "encoder" for theta
+    or an x computed from the encoder's theta (on its grid), "linear" for any other x. The
+    thresholds depend on it, and so does the filter on an end stop. An x that never moves reads
+    as the encoder."""
+    if "x" not in rec.signals:
+        return "encoder"
+    coherent = encoder_grid_coherence(rec.signals["x"], plant, checks) >= checks.encoder_grid_coherence
+    return "encoder" if coherent else "linear"
+
+
+def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = False,
+                 position_sensor: str | None = None, checks: InputChecks = CHECKS) -> tuple[FilterInput, InputReport]:
+    """Check a (measured-only) recording and turn it into the filter's input. ``position_sensor``:
+    where its x came from (:func:`detect_position_sensor` when None)."""
+    name = str(rec.source) if rec.source else "recording"
+    if rec.n < 10:
+        raise UserError(f"{name}: only {rec.n} samples; the filter needs at least 10")
+    sig = {k: np.array(v, dtype=float) for k, v in rec.signals.items()}
+    dropped = 0
+    lo, hi = checks.pressure_range_Pa
+    for ch in ("pA", "pB", "pS"):
+        if ch in sig:
+            a = sig[ch]
+            bad = np.isfinite(a) & ((a < lo - checks.range_margin_Pa) | (a > hi + checks.range_margin_Pa))
+            dropped += _drop(name, rec.t, ch, a, bad, "Pa", f"the sensor range {lo / 1e6:g}-{hi / 1e6:g} MPa",
+                             drop_out_of_range)
+    column = "x" if "x" in sig else "theta"
+    bad, stroke = _outside_stroke(column, sig[column], plant, checks.position_margin_m)
+    dropped += _drop(name, rec.t, column, sig[column], bad, "m" if column == "x" else "rad", stroke,
+                     drop_out_of_range, hint="check the sensor's zero and sign, or the plant file; ")
+    for ch in ("pA", "pB", column):
+        if not np.isfinite(sig[ch]).any():  # --drop-out-of-range left nothing of it
+            raise UserError(f"{name}: '{ch}': every sample is outside its valid range; nothing is left to filter")
+    if "pS" in sig and not np.isfinite(sig["pS"]).any():  # the plant's supply pressure, as without the column
+        del sig["pS"]
+    u, gaps = sig["u"], int(np.isnan(sig["u"]).sum())
+    if gaps:  # the input drives the model: hold the last value through a gap
+        idx = np.where(np.isfinite(u), np.arange(len(u)), 0)
+        np.maximum.accumulate(idx, out=idx)
+        u = u[idx]
+        u[~np.isfinite(u)] = 0.0
+    sensor = "encoder" if column == "theta" else position_sensor or detect_position_sensor(rec, plant, checks)
+    inp = FilterInput(dt=rec.dt, u=u[None, :], pA=sig["pA"][None, :], pB=sig["pB"][None, :], pos=sig[column][None, :],
+                      pos_kind=POS_X if column == "x" else POS_THETA, params=plant.vector()[None, :],
+                      pS=sig["pS"][None, :] if "pS" in sig else None, position_sensor=sensor)
+    return inp, InputReport(samples=rec.n, dt_s=rec.dt, position=column, supply_pressure_measured="pS" in sig,
+                            out_of_range_samples=dropped,
+                            ignored_optional_columns=sorted(set(rec.signals) & {"v", "xs"}), u_gaps_held=gaps)
+
+
+def _drop(name: str, t, column: str, a: np.ndarray, bad: np.ndarray, unit: str, valid: str, drop: bool,
+          hint: str = "") -> int:
+    """Samples ``bad`` of column ``a`` lie outside ``valid``: refuse the recording (UserError) or,
+    with ``drop`` (--drop-out-of-range), make them missing (NaN, in place); returns how many."""
+    if not bad.any():
+        return 0
+    i = int(np.flatnonzero(bad)[0])
+    if not drop:
+        raise UserError(f"{name}: '{column}': {int(bad.sum())} sample(s) outside {valid} (first at data row "
+                        f"{i + 1}, t = {t[i]:.6g} s: {a[i]:.6g} {unit}); {hint}use --drop-out-of-range to treat "
+                        "them as missing samples")
+    a[bad] = np.nan
+    return int(bad.sum())
+
+
+def _outside_stroke(column: str, pos: np.ndarray, plant: Plant, margin: float) -> tuple[np.ndarray, str]:
+    """(bad (T,), description): samples of the position column ("x" [m] or "theta" [rad]) whose
+    piston position lies outside the plant's stroke [0, x_end] by more than ``margin`` [m] (theta
+    outside (0, pi) has no position): there the filter would hold the piston on an end stop at
+    every sample and report a confident, meaningless diagnosis."""
+    p = plant.vector()
+    L = p[P.L_1], p[P.L_2], p[P.L_3]
+    x_joint = piston_position(p[P.theta_max], *L)
+    x_end = min(p[P.x_max], x_joint)
+    if column == "x":
+        x = pos
+    else:
+        x = np.where((pos > 0.0) & (pos < np.pi), piston_position(np.clip(pos, 0.0, np.pi), *L), np.nan)
+    bad = np.isfinite(pos) & ~((x >= -margin) & (x <= x_end + margin))
+    ends = ("" if column == "x" else
+            f"theta {joint_angle(0.0, *L):.4g}-{joint_angle(x_end, *L):.4g} rad, i.e. ") + f"x 0-{x_end:.4g} m"
+    limit = (f"theta_max {p[P.theta_max]:g} rad limits x_max {p[P.x_max]:g} m" if x_joint < p[P.x_max]
+             else f"x_max {p[P.x_max]:g} m")
+    return bad, f"the plant's stroke ({ends}, +-{margin * 1e3:g} mm; {limit})"
+
+
+def check_observable(inp: FilterInput, plant: Plant, name: str = "plant", recording: str = "the recording",
+                     checks: InputChecks = CHECKS) -> None:
+    """Refuse a plant under which a fault parameter cannot change the measurements: the
+    recording's input simulated with each fault at a clear size (1 L/min at 10 MPa, 2 % offset)
+    must move the chamber pressures by more than ``observable_Pa``."""
+    T = min(inp.u.shape[1], int(checks.observability_s / inp.dt) + 1)
+    p0 = plant.vector()
+    rows = [p0.copy()]
+    sizes = {"K_int": K_PER_LPM, "K_extA": K_PER_LPM, "K_extB": K_PER_LPM, "offset": 0.02}
+    for f, v in sizes.items():
+        p = p0.copy()
+        p[P[f]] = v
+        rows.append(p)
+    params = np.array(rows)
+    x0 = initial_state(params, x=0.05)
+    n_sub = model_substeps(inp.dt)  # the model steps the filter takes: a coarse recording's input held
+    res = simulate_batch(params, np.repeat(inp.u[0, :T - 1], n_sub), inp.dt / n_sub, x0=x0,
+                         record_every=n_sub, channels=("p_A", "p_B", "x"))
+    if not all(np.isfinite(res[c]).all() for c in ("p_A", "p_B", "x")):
+        raise UserError(f"{name}: the model diverges under this plant and the input of {recording}; "
+                        "check the plant parameters (lengths and diameters in m, volumes, B_eff, valve flows)")
+    for i, f in enumerate(sizes, start=1):
+        effect = max(np.max(np.abs(res["p_A"][i] - res["p_A"][0])), np.max(np.abs(res["p_B"][i] - res["p_B"][0])))
+        if not effect > checks.observable_Pa:
+            raise UserError(
+                f"{name}: parameter '{f}' is unobservable with this plant: a fault of "
+                f"{'2 %' if f == 'offset' else '1 L/min at 10 MPa'} changes the chamber pressures by "
+                f"only {effect:.3g} Pa (< the {checks.observable_Pa / 1e3:g} kPa sensor noise) under the input of "
+                f"{recording}; check p_S, B_eff, V_0A, V_0B and the valve flows")
+
+
+def at_thresholds_rate(rec: Recording, th: Thresholds, checks: InputChecks = CHECKS) -> tuple[Recording, int]:
+    """The recording at the rate its thresholds were derived for (sigma and h depend on it), and
+    the decimation k: as it is (k = 1) within ``rate_tolerance`` of that rate, every k-th sample
+    when it is a whole k times faster; otherwise a UserError that names what to do."""
+    tol, min_rate = checks.rate_tolerance, checks.min_sample_rate_Hz
+    dt_th, source = th.derived.sample_dt_s, th.derived.source
+    if not (rec.dt <= (1.0 + tol) / min_rate):
+        raise UserError(f"{rec.source or 'recording'}: 't': sampled every {rec.dt * 1e3:.3g} ms ({1 / rec.dt:.4g} Hz); "
+                        f"the filter needs {min_rate:g} Hz or faster to follow the chamber pressures")
+    ratio = dt_th / rec.dt
+    k = max(1, round(ratio))
+    if abs(ratio / k - 1.0) <= tol:
+        if k == 1:
+            return rec, 1
+        return Recording(rec.t[::k], {c: v[::k] for c, v in rec.signals.items()}, {}, rec.metadata, rec.source), k
+    rate, ms = 1.0 / rec.dt, rec.dt * 1e3
+    supported = 1000.0 / max(1, round(ms))  # the studies sample every whole ms
+    if rate < 1000.0 and abs(supported / rate - 1.0) <= tol and supported >= min_rate:
+        todo = (f"derive thresholds for it with `samfdi fdi thresholds --sample-rate {supported:.5g} --out DIR` "
+                "and pass --thresholds DIR/thresholds.toml")
+    else:
+        todo = "resample it to 1000 Hz, or to 1000 / k Hz (k = 2 ... 10) and derive thresholds for that rate"
+    raise UserError(f"{rec.source or 'recording'}: 't': sampled at {rate:.4g} Hz, but the thresholds were derived "
+                    f"for {1 / dt_th:.4g} Hz ({source}); {todo}")
+
+
+def check_duration(rec: Recording, th: Thresholds, own_baseline: bool) -> None:
+    """Refuse a recording too short to test: "healthy" would only mean "not looked at"."""
+    w = th.window
+    needed = w.warmup_s + (w.baseline_s if own_baseline else 0.0) + w.min_tested_s
+    duration = float(rec.t[-1] - rec.t[0])
+    if duration < needed:
+        parts = f"{w.warmup_s:g} s filter warm-up" + (f", {w.baseline_s:g} s healthy baseline" if own_baseline else "")
+        raise UserError(f"{rec.source or 'recording'}: 't': only {duration:.3g} s long; a diagnosis needs at least "
+                        f"{needed:g} s ({parts} and {w.min_tested_s:g} s to test)")
