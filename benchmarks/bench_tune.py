@@ -6,7 +6,7 @@ The runs are the tune's own (`fdi.tune`): 230 healthy runs and 46 runs of each o
 cases (1012 runs, the `samfdi fdi tune --runs 230` fault runs, with the healthy runs cut from 20 s
 to 4 s and the 20-60 s long cycles left out so that every run is 4 s long), each simulated,
 filtered, tested and, where a test alarms, judged by the likelihood bank, on the tune's process
-pool, chunk files written as the tune writes them. Side by side: what a plain filterpy loop that
+pool, chunks written into a chunk store as the tune writes them. Side by side: what a plain filterpy loop that
 calls the model once per sigma point needs for the detecting filter alone of the same runs
 (timed over 0.4 s of one run and scaled), which is a lower bound of its tune.
 """
@@ -25,6 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
+from chunkstore import Store  # noqa: E402
 from sam import load_plant  # noqa: E402
 from fdi import FilterConfig, Thresholds, tune  # noqa: E402
 from fdi.filter import initial_mean  # noqa: E402
@@ -41,9 +42,9 @@ def tune_jobs() -> list:
 
 def time_tune(plant, th: Thresholds, jobs: list, workers: int) -> float:
     """Wall time [s] of one tune of ``jobs`` on ``workers`` processes (the tune's own pool, worker
-    start-up included), into a fresh folder."""
-    with tempfile.TemporaryDirectory() as tmp:
-        return tune.compute_chunks(plant, th, Path(tmp), jobs, jobs, "bench", workers, None, False, False, False)["wall_s"]
+    start-up included), into a fresh chunk store."""
+    with tempfile.TemporaryDirectory() as tmp, Store.open(tmp, {"bench": "tune"}) as store:
+        return tune.compute_chunks(store, plant, th, jobs, "bench", workers=workers)[1]["wall_s"]
 
 
 def filterpy_seconds_per_run(plant, th: Thresholds, n_ref: int = 400) -> float:

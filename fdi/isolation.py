@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .bank import (
-    DESIGN, FAULT_IDX, BankDesign, BankResult, bank_config, confirm_calibration, reference_rows, run_bank_starts,
+    DESIGN, BankDesign, BankResult, bank_config, confirm_calibration, reference_rows, run_bank_starts,
     run_hypotheses, run_pairs, run_reference, start_seed,
 )
 from .faults import FAULTS, MULTI, PAIR_SEP, hypothesis_name

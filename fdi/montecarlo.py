@@ -3,10 +3,8 @@ and model uncertainty, filtered many at a time by the batched UKF."""
 
 from __future__ import annotations
 
-import multiprocessing
 from dataclasses import dataclass, field
 
-import numba
 import numpy as np
 
 from sam import P, Plant, profiles
@@ -80,21 +78,6 @@ def leak_flow_lpm(runs, fault: str, k_from: np.ndarray, window_s: float) -> np.n
     Q = np.abs(Q[LEAKS.index(fault)])
     w = max(1, int(round(window_s / runs.inp.dt)))
     return np.array([Q[b, k:k + w].mean() for b, k in enumerate(np.asarray(k_from))]) / LPM
-
-
-def pool_context():
-    """The start method of the Monte Carlo's worker pools. The platform's default (fork on Linux:
-    the workers inherit the imports) until the simulator's parallel loop has run in this process;
-    from then on "spawn", a fresh interpreter per worker, because libgomp kills a fork of a
-    process that has used GNU OpenMP ("fork() called from a process already using GNU OpenMP"):
-    a tune or a threshold study after any simulation in the same Python session broke its pool.
-    Spawned workers import the package again (about 1.5 s each, side by side) and, as with any
-    spawn, a script that starts the pool needs ``if __name__ == "__main__":``."""
-    try:
-        numba.threading_layer()  # raises ValueError until a parallel loop has run here
-    except ValueError:
-        return multiprocessing.get_context()
-    return multiprocessing.get_context("spawn")
 
 
 def draw_truth(plant: Plant, n: int, rng: np.random.Generator, nuisance: bool = True) -> np.ndarray:

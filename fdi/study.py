@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 import math
 import warnings
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -30,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from chunkstore import execute
 from gsa import Problem, analyze, saltelli_design
 from gsa.studies import load_study
 from sam import P, Plant
@@ -38,7 +38,7 @@ from .conditions import held, long_stroke_mask, regimes
 from .config import FilterConfig
 from .faults import HYPOTHESES, NOTCH_TRIGGER, PARAMS, REGIMES
 from .filter import run_filter
-from .montecarlo import LOAD_RANGE, NUISANCE, pool_context
+from .montecarlo import LOAD_RANGE, NUISANCE
 from .statistics import change_spread, cusum, cusum_drift, has_notch_states, notch_armed, notch_jump, own_baseline
 from .synth import POSITION_SENSORS, random_input, simulate_runs
 from .thresholds import MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, Thresholds, describe, to_toml
@@ -235,26 +235,18 @@ def _problems(design: StudyDesign):
     return lp, Problem(names=tuple(names), bounds=tuple(bounds), groups=tuple(groups))
 
 
-def _evaluate(model, X, workers: int, chunk: int = 32, progress: str | None = None):
-    """model(rows) over X in chunks of ``chunk`` rows, in order, on ``workers`` processes;
-    ``progress``: the label of a progress bar (None: silent)."""
-    parts = [X[i:i + chunk] for i in range(0, len(X), chunk)]
-    bar = tqdm(total=len(X), desc=progress, unit="run", disable=progress is None)
-
-    def collect(mapper):
-        out = []
-        for p, res in zip(parts, mapper(model, parts)):
-            out.append(res)
-            bar.update(len(p))
-        return out
-
-    if workers > 1:
-        with ProcessPoolExecutor(workers, mp_context=pool_context()) as ex:
-            out = collect(ex.map)
-    else:
-        out = collect(map)
-    bar.close()
-    return out
+def _evaluate(model, X, workers: int, chunk: int = 32, progress: str | None = None) -> list:
+    """model(rows) over X in chunks of ``chunk`` rows, in order, here or on ``workers`` local
+    processes (the chunk store's pool); ``progress``: the label of a progress bar (None: silent).
+    Nothing is stored: the studies' intermediate arrays are GBs and take minutes to compute."""
+    tasks = {f"rows_{i:06d}": (X[i:i + chunk],) for i in range(0, len(X), chunk)}
+    done = {}
+    with tqdm(total=len(X), desc=progress, unit="run", disable=progress is None) as bar:
+        for key, res in execute(model, tasks, "processes" if workers > 1 else "inline",
+                                workers=workers if workers > 1 else None):
+            done[key] = res
+            bar.update(len(tasks[key][0]))
+    return [done[key] for key in tasks]
 
 
 def level_threshold(maxima: np.ndarray, p: float) -> float:

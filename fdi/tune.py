@@ -8,31 +8,23 @@ Each fault run steps in at its own random onset (:func:`draw_onsets`, from the c
 from the draws of loads, inputs and nuisance); every scored window is per run. Healthy runs are
 scored over the whole run. The protocol is :data:`fdi.montecarlo.TUNE`.
 
-Work is split into chunks; each finished chunk is saved to
-``DIR/chunks/<name>_<seed>_<CHUNK_VERSION>.npz`` (a few numbers per run) so an interrupted
-run resumes where it stopped. The version tag keeps chunks of an older layout from being mixed in.
-
-A chunk's name does not say which thresholds, plant or run count made it, so the folder
-does: ``DIR/tune.json`` (:func:`manifest`), written when a tune starts there. A later tune
-into the folder with other settings is refused instead of mixing its chunks with these; the
-``--reference`` / ``--bound`` modes are tagged apart and share the folder. Chunks are written
-atomically; one that cannot be read (a damaged file) is reported and recomputed.
+Work is split into chunks of a :class:`chunkstore.Store` in the output folder
+(``DIR/manifest.json``, ``DIR/chunks/<name>_<seed>_<mode>.npz`` with their checksums): an
+interrupted run resumes where it stopped, a folder made with other thresholds, plant or run
+count is refused (:func:`fingerprint`), and the ``--reference`` / ``--bound`` modes are keyed
+apart and share the folder.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import math
-import os
 import time
-import warnings
-import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
 
+from chunkstore import MANIFEST, Store, StoreError, compute
 from sam import Plant, UserError
 from sam.errors import output_folder
 
@@ -43,20 +35,21 @@ from .diagnosis import judge
 from .faults import HYPOTHESES, hypothesis_name
 from .filter import run_filter
 from .metrics import analyse, write_report
-from .montecarlo import LEAKS, TUNE, leak_flow_lpm, make_batch, make_reference_batch, pool_context
+from .montecarlo import LEAKS, TUNE, leak_flow_lpm, make_batch, make_reference_batch
 from .alarms import first_alarms
 from .statistics import Statistics, statistics
 from .thresholds import Thresholds
 
 HYP = tuple(HYPOTHESES)
-#: chunk file tag: the layout of the chunks (their keys and what made them); an older folder's
-#: chunks are never mixed in
+#: the layout of the chunks (their keys and what made them): in the fingerprint and every key
 CHUNK_VERSION = "x"
-MANIFEST = "tune.json"  #: the settings the folder's chunks were made with (:func:`manifest`)
-#: what a tune writes besides chunks/ and the manifest: in a folder that is not a tune folder
-#: these are the user's own and are not overwritten without ``force``
+#: what a tune writes besides the store: in a folder that is not a tune folder these are the
+#: user's own and are not overwritten without ``force``
 OUTPUTS = ("metrics.md", "metrics.json", "thresholds_used.json", "roc.png")
-#: chunk keys every mode writes (a chunk without one of them is damaged)
+#: what the manifest says of the chunks, for a person reading it
+LAYOUT = {"chunks": "<case>_<seed>_<mode>.npz: per run of the chunk (fdi.tune.chunk_job)",
+          "mode": "x, then c with --reference, b with --bound"}
+#: chunk keys every mode writes
 CHUNK_KEYS = ("first", "max", "m_L", "k_onset")
 #: chunk keys of the bank's verdicts (:func:`bank_decisions`)
 BANK_KEYS = ("iso_h", "iso_k", "conf_k", "n_withdrawn")
@@ -192,79 +185,63 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
              bound: bool = False, force: bool = False) -> dict:
     """The Monte Carlo into ``out_dir`` (resumable); ``reference``: every machine calibrated on a
     healthy reference recording first; ``bound``: also the evidence at the known onset
-    (:mod:`fdi.bound`; about three times the work). Each mode's chunks are tagged apart.
+    (:mod:`fdi.bound`; about three times the work). Each mode's chunks are keyed apart.
     ``force``: overwrite the files a tune writes in a folder that is not a tune folder.
-    ``workers`` > 1: a local process pool (:func:`fdi.montecarlo.pool_context` says when its
-    workers are spawned, and so when a calling script needs ``if __name__ == "__main__":``).
+    ``workers`` > 1: a local process pool (spawned: a calling script needs
+    ``if __name__ == "__main__":``); ``scheduler``: a dask.distributed cluster instead.
     Every refusal (``out_dir`` not a writable folder, made with other settings, holding the
-    user's files; an unreachable ``scheduler``) is a UserError raised before any computing."""
+    user's files, another run writing into it) is a UserError raised before any computing."""
     out_dir = Path(out_dir)
-    chunk_dir = out_dir / "chunks"
     th = Thresholds.shipped() if thresholds is None else thresholds
     dt = th.derived.sample_dt_s
     if abs(dt / TUNE.dt - 1.0) > 1e-9:
         raise UserError(f"--thresholds: derived for {1 / dt:.4g} Hz recordings; the tune simulates and "
                         f"filters at {1 / TUNE.dt:g} Hz only ({th.derived.source})")
     jobs = jobs_of(n_runs)
-    tag = mode_tag(reference, bound)
-    want = manifest(plant, th, n_runs)
-    output_folder(out_dir, create=False)  # created by _start: a refused run leaves nothing behind
-    _check_folder(out_dir, want, th, force)
-    todo = _todo(chunk_dir, jobs, tag)  # before the manifest is written: it may refuse an older folder
-    client = _connect(scheduler) if scheduler else None
+    want = fingerprint(plant, th, n_runs)
+    output_folder(out_dir, create=False)  # created by the store: a refused run leaves nothing behind
+    _check_folder(out_dir, want, force)
+    if scheduler:
+        _check_scheduler(scheduler)
     try:
-        _start(out_dir, want, th)
-        timing = compute_chunks(plant, th, chunk_dir, jobs, todo, tag, workers, client, progress, reference, bound)
-    finally:
-        if client is not None:
-            client.close()
-    return summarise(out_dir, jobs, th, tag, timing)
+        with Store.open(out_dir, want, resume=True, layout=LAYOUT) as store:
+            (out_dir / "thresholds_used.json").write_text(th.to_json() + "\n")
+            cases, timing = compute_chunks(store, plant, th, jobs, mode_tag(reference, bound), workers=workers,
+                                           scheduler=scheduler, progress=progress, reference=reference, bound=bound)
+            return summarise(out_dir, cases, th, reference, timing)
+    except StoreError as exc:
+        raise UserError(str(exc)) from None
 
 
-def compute_chunks(plant: Plant, th: Thresholds, chunk_dir: Path, jobs: list, todo: list, tag: str, workers: int,
-             client, progress: bool, reference: bool, bound: bool) -> dict:
-    """Filter the chunks of ``todo`` (those of ``jobs`` not on disk yet) on ``client``, ``workers``
-    local processes or here, and save each as it finishes; returns the timing of this call
-    (wall_s [s])."""
-    old = [p for p in chunk_dir.glob("*.npz") if not p.stem.endswith(f"_{tag}")]
-    if old and progress:
-        print(f"fdi tune: ignoring {len(old)} chunk file(s) in {chunk_dir} of an older layout or of "
-              f"another --reference / --bound mode (this run's tag: {tag!r})")
-    from tqdm import tqdm
-    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="fdi tune", unit="chunk", disable=not progress)
-
-    def save(job, res):
-        _save_chunk(chunk_path(chunk_dir, job, tag), res)
-        bar.update(1)
-
+def compute_chunks(store: Store, plant: Plant, th: Thresholds, jobs: list, tag: str, *, workers: int = 1,
+                   scheduler: str | None = None, progress: bool = False, reference: bool = False,
+                   bound: bool = False) -> tuple[dict, dict]:
+    """Every chunk of ``jobs`` in mode ``tag`` from ``store``, the missing ones computed (on
+    ``scheduler``, ``workers`` local processes, or here) and saved as each finishes: (case name ->
+    its runs' arrays in job order (:func:`gather`), the timing of this call (wall_s [s]))."""
+    tasks = {chunk_key(j, tag): (plant, th, *j[1:], reference, bound) for j in jobs}
+    sizes = {chunk_key(j, tag): j[3] for j in jobs}
+    executor = "dask" if scheduler else "processes" if workers > 1 else "inline"
+    chunks, computed = {}, []
     t0 = time.perf_counter()
-    if client is not None:
-        from dask.distributed import as_completed
-        futs = {client.submit(chunk_job, plant, th, *j[1:], reference, bound, pure=False): j for j in todo}
-        for fut in as_completed(futs):
-            save(futs[fut], fut.result())
-    elif workers > 1:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-        with ProcessPoolExecutor(workers, mp_context=pool_context()) as ex:
-            futs = {ex.submit(chunk_job, plant, th, *j[1:], reference, bound): j for j in todo}
-            for fut in as_completed(futs):
-                save(futs[fut], fut.result())
-    else:
-        for j in todo:
-            save(j, chunk_job(plant, th, *j[1:], reference, bound))
-    bar.close()
+    for chunk in compute(store, chunk_job, tasks, executor=executor, workers=workers if executor == "processes" else None,
+                         scheduler=scheduler, progress=progress, desc="fdi tune", unit="run", sizes=sizes):
+        chunks[chunk.key] = chunk.arrays
+        if not chunk.reused:
+            computed.append(chunk.key)
     wall = time.perf_counter() - t0
-    n_todo = sum(j[3] for j in todo)
-    return {"runs_computed": n_todo, "wall_s": wall, "workers": workers,
-            "s_per_1000_runs": wall / max(n_todo, 1) * 1000, "chunks_computed": len(todo), "chunks": len(jobs)}
+    n_todo = sum(sizes[k] for k in computed)
+    return gather(chunks, jobs, tag), {
+        "runs_computed": n_todo, "wall_s": wall, "workers": workers, "s_per_1000_runs": wall / max(n_todo, 1) * 1000,
+        "chunks_computed": len(computed), "chunks": len(jobs)}
 
 
-def manifest(plant: Plant, th: Thresholds, n_runs: int) -> dict:
-    """What a tune folder's chunks depend on besides their job and mode tag: the chunk layout,
-    the run count (it sets the chunks' sizes and the fault runs per case) and hashes (sha256)
-    of the thresholds as JSON and of the plant vector (float64 bytes)."""
+def fingerprint(plant: Plant, th: Thresholds, n_runs: int) -> dict:
+    """What a tune folder's chunks depend on besides their job and mode: the chunk layout, the
+    run count (it sets the chunks' sizes and the fault runs per case) and hashes (sha256) of the
+    thresholds as JSON and of the plant vector (float64 bytes)."""
     vec = np.ascontiguousarray(plant.vector(), dtype=np.float64)
-    return {"layout": CHUNK_VERSION, "runs": int(n_runs),
+    return {"job": "fdi tune", "layout": CHUNK_VERSION, "runs": int(n_runs),
             "thresholds_sha256": hashlib.sha256(th.to_json().encode()).hexdigest(),
             "plant_sha256": hashlib.sha256(vec.tobytes()).hexdigest()}
 
@@ -284,27 +261,23 @@ def _differences(old: dict, new: dict) -> list:
     return out
 
 
-def _check_folder(out_dir: Path, want: dict, th: Thresholds, force: bool) -> None:
-    """Refuse (UserError) a folder whose manifest differs from ``want``, and a folder that is no
-    tune folder but holds a file the tune writes unless ``force``. A folder with chunks and no
-    manifest is a tune from before the manifest: resumed; its thresholds_used.json is checked,
-    its run count when its chunks are read (:func:`_todo`); its plant cannot be."""
-    path = out_dir / MANIFEST
+def _check_folder(out_dir: Path, want: dict, force: bool) -> None:
+    """Refuse (UserError), in the words of the command line, a tune folder made with other
+    settings or by an older samfdi, and a folder that is no tune folder but holds a file the tune
+    writes unless ``force`` (the store itself refuses a folder of chunks of unknown origin)."""
     hint = "use another --out, or the same settings to resume"
+    if (out_dir / "tune.json").exists():
+        raise UserError(f"{out_dir}: a tune folder of an older samfdi (tune.json; its chunks have no checksums); "
+                        "use another --out")
+    path = out_dir / MANIFEST
     if path.exists():
         try:
-            old = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise UserError(f"{path}: not a readable tune manifest ({exc}); delete it to resume the folder "
-                            f"unchecked, or use another --out") from None
+            old = json.loads(path.read_text()).get("fingerprint", {})
+        except (OSError, ValueError, AttributeError):
+            return  # the store names what is wrong with it
         diffs = _differences(old, want)
         if diffs:
             raise UserError(f"{out_dir}: a tune folder made with other settings: {'; '.join(diffs)}; {hint}")
-        return
-    if any((out_dir / "chunks").glob("*.npz")):
-        used = _read_json(out_dir / "thresholds_used.json")
-        if used is not None and used != json.loads(th.to_json()):
-            raise UserError(f"{out_dir}: a tune folder made with other thresholds (thresholds_used.json differs); {hint}")
         return
     mine = [f for f in OUTPUTS if (out_dir / f).exists()]
     if mine and not force:
@@ -312,125 +285,45 @@ def _check_folder(out_dir: Path, want: dict, th: Thresholds, force: bool) -> Non
                         "use another --out, or --force to overwrite")
 
 
-def _read_json(path: Path):
-    """The JSON in ``path``; None if it is missing or not JSON."""
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-
-
-def _connect(scheduler: str):
-    """A dask Client on ``scheduler``; an address that cannot be reached is a UserError."""
+def _check_scheduler(scheduler: str) -> None:
+    """Refuse (UserError) a dask scheduler that does not answer within dask's connect timeout,
+    before the store is opened (the store would try for 30 s behind a progress bar)."""
     try:
         from dask.distributed import Client
     except ImportError:
         raise UserError("--scheduler needs dask[distributed]") from None
     try:
-        return Client(scheduler)
+        Client(scheduler).close()
     except (OSError, TimeoutError, ValueError) as exc:  # ValueError: a malformed address
         raise UserError(f"cannot reach the dask scheduler at {scheduler}: {' '.join(str(exc).split())}") from None
 
 
-def _start(out_dir: Path, want: dict, th: Thresholds) -> None:
-    """Write the manifest (the first write: an unwritable folder is refused here), chunks/ and
-    thresholds_used.json."""
-    output_folder(out_dir)
-    try:
-        _write_atomic(out_dir / MANIFEST, (json.dumps(want, indent=2) + "\n").encode())
-        (out_dir / "chunks").mkdir(exist_ok=True)
-        (out_dir / "thresholds_used.json").write_text(th.to_json() + "\n")
-    except OSError as exc:
-        raise UserError(f"{out_dir}: --out: cannot write there ({exc.strerror or exc})") from None
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file in ``path``'s folder, then rename it over ``path``:
-    a run killed while writing leaves the old file or none, never a partial one."""
-    _replace_with(path, lambda f: f.write(data))
-
-
-def _save_chunk(path: Path, res: dict) -> None:
-    """Save a chunk's arrays atomically (:func:`_write_atomic`): a chunk that exists is finished."""
-    _replace_with(path, lambda f: np.savez(f, **res))
-
-
-def _replace_with(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # not *.npz: never taken for a chunk
-    try:
-        with open(tmp, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-def _todo(chunk_dir: Path, jobs: list, tag: str) -> list:
-    """The jobs whose chunk is not on disk. A chunk that cannot be read is reported in one line
-    (a warning) and recomputed: it is our own intermediate file. A readable chunk with another
-    run count than its job was made with another --runs (a folder from before the manifest):
-    refused."""
-    todo = []
-    for j in jobs:
-        path = chunk_path(chunk_dir, j, tag)
-        if not path.exists():
-            todo.append(j)
-            continue
-        n, why = _chunk_runs(path, "b" in tag[len(CHUNK_VERSION):])
-        if n is None:
-            warnings.warn(f"fdi tune: {path} cannot be read ({why}); recomputing it", stacklevel=2)
-            todo.append(j)
-        elif n != j[3]:
-            raise UserError(f"{path}: holds {n} runs where this tune's chunk has {j[3]}: the folder was made "
-                            "with another --runs; use another --out, or the same --runs to resume")
-    return todo
-
-
-def _chunk_runs(path: Path, bound: bool) -> tuple:
-    """(runs in the chunk at ``path``, None) or (None, why it cannot be read). Every array is
-    read, so a damaged member fails here and not in :func:`analyse`."""
-    try:
-        with np.load(path) as z:
-            arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
-        return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
-    missing = [k for k in CHUNK_KEYS + (("evidence",) if bound else ()) if k not in arrays]
-    if missing:
-        return None, f"no {', '.join(missing)}"
-    n = {len(arrays[k]) for k in CHUNK_KEYS}
-    return (n.pop(), None) if len(n) == 1 else (None, "arrays of different run counts")
-
-
 def mode_tag(reference: bool, bound: bool = False) -> str:
-    """Chunk file tag: the layout version, "c" appended for a tune with --reference, "b" with --bound."""
+    """A chunk key's mode: the layout version, "c" appended for a tune with --reference, "b" with --bound."""
     return CHUNK_VERSION + ("c" if reference else "") + ("b" if bound else "")
 
 
-def chunk_path(chunk_dir: Path, job, tag: str = CHUNK_VERSION) -> Path:
-    return Path(chunk_dir) / f"{job[0]}_{job[4]}_{tag}.npz"
+def chunk_key(job, tag: str = CHUNK_VERSION) -> str:
+    """The store key of a job's chunk in mode ``tag``."""
+    return f"{job[0]}_{job[4]}_{tag}"
 
 
+def gather(chunks: dict, jobs: list, tag: str = CHUNK_VERSION) -> dict:
+    """Case name -> the arrays of its chunks (``chunks``: key -> arrays) joined in job order."""
+    cases = {}
+    for name in dict.fromkeys(j[0] for j in jobs):
+        parts = [chunks[chunk_key(j, tag)] for j in jobs if j[0] == name]
+        keys = CHUNK_KEYS + BANK_KEYS + tuple(k for k in ("evidence", "leak_flow_lpm") if all(k in p for p in parts))
+        cases[name] = {k: np.concatenate([p[k] for p in parts]) for k in keys}
+    return cases
 
 
-def _load(chunk_dir, jobs, name, tag: str = CHUNK_VERSION):
-    parts = [np.load(chunk_path(chunk_dir, j, tag)) for j in jobs if j[0] == name]
-    keys = CHUNK_KEYS + BANK_KEYS \
-        + (("evidence",) if all("evidence" in p for p in parts) else ()) \
-        + (("leak_flow_lpm",) if all("leak_flow_lpm" in p for p in parts) else ())
-    return {k: np.concatenate([p[k] for p in parts]) for k in keys}
-
-
-def summarise(out_dir: Path, jobs: list, th: Thresholds, tag: str = CHUNK_VERSION, timing: dict | None = None) -> dict:
-    """The metrics of the chunks of ``jobs`` in ``out_dir``/chunks (:func:`fdi.metrics.analyse`),
-    written there as metrics.json, metrics.md and roc.png; ``timing``: this run's, if it computed."""
-    chunk_dir = Path(out_dir) / "chunks"
-    cases = {name: _load(chunk_dir, jobs, name, tag) for name in dict.fromkeys(j[0] for j in jobs)}
+def summarise(out_dir: Path, cases: dict, th: Thresholds, reference: bool = False, timing: dict | None = None) -> dict:
+    """The metrics of ``cases`` (:func:`gather`; :func:`fdi.metrics.analyse`), written into
+    ``out_dir`` as metrics.json, metrics.md and roc.png; ``timing``: this run's, if it computed."""
     metrics = analyse(cases, th)
-    metrics["reference"] = tag.startswith(CHUNK_VERSION + "c")
+    metrics["reference"] = reference
     if timing is not None:
         metrics["timing"] = timing
-    write_report(out_dir, metrics, th, metrics["reference"])
+    write_report(out_dir, metrics, th, reference)
     return metrics

@@ -58,8 +58,8 @@ def test_tune_reports_the_bound_next_to_our_detector(tmp_path):
     n, H = 4, len(tune.HYP)
     jobs = [("healthy", None, 0.0, n, 1000)] + [(f"{f}_{s:g}", f, s, n, 500_000)
                                                   for f, sizes in TUNE.fault_sizes.items() for s in sizes]
-    (tmp_path / "chunks").mkdir()
     tag = tune.mode_tag(False, True)
+    chunks = {}
     for j in jobs:
         ev = np.zeros((n, len(bound.HYPOTHESES)))
         if j[0] == "healthy":
@@ -67,11 +67,11 @@ def test_tune_reports_the_bound_next_to_our_detector(tmp_path):
         if j[0] == "K_int_0.25":
             ev[:, 1] = [100.0, 100.0, 100.0, 2.0]  # three beat the healthy runs, one does not
             ev[:, 3] = [0.0, 99.0, 0.0, 0.0]  # ... and one of them is not isolable from K_extB
-        np.savez(tune.chunk_path(tmp_path / "chunks", j, tag), first=np.full((n, H), -1),
-                 max=np.zeros((n, H, 3)), m_L=np.array([100., 300, 600, 700]),
-                 k_onset=np.full(n, 1500), evidence=ev, iso_h=np.full(n, -1), iso_k=np.full(n, -1),
-                 conf_k=np.full(n, -1), n_withdrawn=np.zeros(n, dtype=int))
-    m = tune.summarise(tmp_path, jobs, th, tag)
+        chunks[tune.chunk_key(j, tag)] = dict(
+            first=np.full((n, H), -1), max=np.zeros((n, H, 3)), m_L=np.array([100., 300, 600, 700]),
+            k_onset=np.full(n, 1500), evidence=ev, iso_h=np.full(n, -1), iso_k=np.full(n, -1),
+            conf_k=np.full(n, -1), n_withdrawn=np.zeros(n, dtype=int))
+    m = tune.summarise(tmp_path, tune.gather(chunks, jobs, tag), th)
     # four healthy runs: their 99 % quantile (3.97 nats) is below the floor ln(1 / 0.01) = 4.6 nats
     assert m["bound"]["threshold_nats"] == pytest.approx(np.log(1 / th.derived.false_alarm_level))
     assert "**Rough:**" in (tmp_path / "metrics.md").read_text()

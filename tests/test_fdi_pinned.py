@@ -3,7 +3,6 @@ skips them (fdi.conditions.pinned, held, baseline_window)."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np

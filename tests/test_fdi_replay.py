@@ -501,8 +501,7 @@ def test_tune_analyse_scores_each_run_from_its_own_onset(tmp_path):
     ki = tune.HYP.index("K_int")
     jobs = [("healthy", None, 0.0, n, 1000)] + [(f"{f}_{s:g}", f, s, n, 500_000)
                                                   for f, sizes in TUNE.fault_sizes.items() for s in sizes]
-    chunk_dir = tmp_path / "chunks"
-    chunk_dir.mkdir()
+    chunks = {}
     for j in jobs:
         first = np.full((n, H), -1, dtype=np.int64)
         k_on = np.full(n, 1500, dtype=np.int64)
@@ -514,11 +513,11 @@ def test_tune_analyse_scores_each_run_from_its_own_onset(tmp_path):
         if j[0] in ("K_int_0.5", "K_int_1", "K_extA_0.5"):  # every run isolated 1 ms after its onset
             first[:, tune.HYP.index(j[1])] = 1501
             iso_h[:] = tune.HYP.index(j[1])
-        np.savez(tune.chunk_path(chunk_dir, j), first=first, max=np.zeros((n, H, 3)),
-                 m_L=np.array([100., 300, 600, 700]), k_onset=k_on, iso_h=iso_h,
-                 iso_k=np.where(iso_h >= 0, first.max(axis=1), -1), conf_k=first.max(axis=1),
-                 n_withdrawn=np.zeros(n, dtype=np.int64))
-    m = tune.summarise(tmp_path, jobs, th)
+        chunks[tune.chunk_key(j)] = dict(first=first, max=np.zeros((n, H, 3)),
+                                         m_L=np.array([100., 300, 600, 700]), k_onset=k_on, iso_h=iso_h,
+                                         iso_k=np.where(iso_h >= 0, first.max(axis=1), -1), conf_k=first.max(axis=1),
+                                         n_withdrawn=np.zeros(n, dtype=np.int64))
+    m = tune.summarise(tmp_path, tune.gather(chunks, jobs), th)
     row = next(r for r in m["rows"] if r["fault"] == "K_int" and r["size"] == 0.25)
     assert row["alarm_before_onset"] == 0.25  # run 0
     assert row["detected_within_1s"] == 0.5  # runs 1 (1 ms) and 2 (100 ms)
@@ -531,7 +530,7 @@ def test_tune_analyse_scores_each_run_from_its_own_onset(tmp_path):
     # loads 100 / 300 / 600 / 700 kg: the 267-534 kg third has one K_int 0.25 run, isolated: 100 %
     assert m["smallest_detected_and_isolated_95pct_within_1s_by_load"]["K_int"] == [0.5, 0.25, 0.5]
     assert "uniform in [1.5, 2.5] s" in (tmp_path / "metrics.md").read_text()
-    assert str(tune.chunk_path(chunk_dir, jobs[0])).endswith(f"_{tune.CHUNK_VERSION}.npz")
+    assert tune.chunk_key(jobs[0]).endswith(f"_{tune.CHUNK_VERSION}")
 
 
 def test_tune_chunk_job_random_onsets_real_runs():

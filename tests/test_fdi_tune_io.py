@@ -1,22 +1,20 @@
-"""`samfdi fdi tune` as a user meets it: the folder it resumes (manifest, damaged chunks,
-the user's own files), bad --out / --scheduler, and what metrics.md / metrics.json / roc.png
-say. The Monte Carlo itself is replaced by hand-made seeded chunks (tune.chunk_job
-monkeypatched), so each test takes well under a second or two."""
+"""`samfdi fdi tune` as a user meets it: the folder it resumes (its chunk store: manifest,
+damaged chunks, the user's own files), bad --out / --scheduler, and what metrics.md /
+metrics.json / roc.png say. The Monte Carlo itself is replaced by hand-made seeded chunks
+(tune.chunk_job monkeypatched), so each test takes well under a second or two."""
 
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fdi import metrics, rates, tune
-from fdi.montecarlo import TUNE
-from fdi.montecarlo import LEAKS, leak_flow_lpm, make_batch
+from chunkstore import CHUNK_DIR, MANIFEST, SUMS
+from fdi import Thresholds, metrics, rates, tune
+from fdi.montecarlo import LEAKS, TUNE, leak_flow_lpm, make_batch
 from fdi.thresholds import SHIPPED_THRESHOLDS
-from fdi import Thresholds
 from sam import UserError, load_plant
 from samfdi.cli import build_parser, main
 
@@ -24,7 +22,7 @@ N_RUNS = 10  # 10 healthy runs, max(5, 10 // 5) = 5 runs per fault case: one chu
 
 
 def _fake_chunk(plant, th, fault, size, n, seed, inputs="standard", reference=False, bound=False):
-    """A chunk as _chunk_job returns it, made by hand (seeded): healthy runs never alarm; fault
+    """A chunk as chunk_job returns it, made by hand (seeded): healthy runs never alarm; fault
     runs alarm on the right hypothesis 100 ms after their onset and the bank names it there,
     except that in K_int 0.5 L/min the bank names K_extA in run 0 (a wrong isolation)."""
     rng = np.random.default_rng(seed)
@@ -73,7 +71,7 @@ def test_resume_refuses_a_folder_made_with_other_settings(tmp_path, calls, capsy
     assert _tune(out) == 0
     n_jobs = len(tune.jobs_of(N_RUNS))
     assert len(calls) == n_jobs == 1 + 1 + 17
-    man = json.loads((out / "tune.json").read_text())
+    man = json.loads((out / MANIFEST).read_text())["fingerprint"]
     assert man["runs"] == N_RUNS and man["layout"] == tune.CHUNK_VERSION
     before = json.loads((out / "metrics.json").read_text())["rows"]
     capsys.readouterr()
@@ -101,25 +99,20 @@ def test_resume_refuses_a_folder_made_with_other_settings(tmp_path, calls, capsy
     assert len(calls) == 2 * n_jobs
 
 
-def test_folder_from_before_the_manifest_is_resumed_and_checked(tmp_path, calls):
-    """chunks/ without tune.json: a tune folder of an older samfdi. Resumed (nothing computed)
-    and given its manifest; but its chunks of another --runs, or its thresholds_used.json of
-    other thresholds, are refused."""
+def test_folder_of_an_older_tune_is_refused_untouched(tmp_path, calls):
+    """A tune folder written before the chunk store (tune.json, chunks without checksums) is
+    refused in one line naming it, before anything is computed; so is a chunks/ folder without a
+    manifest, whose origin is unknown. Nothing in either is deleted."""
     out = tmp_path / "t"
-    tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
+    (out / "chunks").mkdir(parents=True)
+    (out / "tune.json").write_text(json.dumps({"layout": "x", "runs": N_RUNS}))
+    np.savez(out / "chunks" / "healthy_1000_x.npz", first=np.full((N_RUNS, len(tune.HYP)), -1))
+    with pytest.raises(UserError, match=rf"^{out}: a tune folder of an older samfdi .*another --out$"):
+        tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
     (out / "tune.json").unlink()
-    n = len(calls)
-    tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
-    assert len(calls) == n and json.loads((out / "tune.json").read_text())["runs"] == N_RUNS
-
-    (out / "tune.json").unlink()
-    with pytest.raises(UserError, match="holds 10 runs where this tune's chunk has 20.*another --runs"):
-        tune.run_tune(load_plant(), out, n_runs=20, progress=False)
-    assert not (out / "tune.json").exists()  # the refused settings are not written down as the folder's
-    th = Thresholds.shipped()
-    with pytest.raises(UserError, match="other thresholds"):
-        tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False, thresholds=th.with_(drift=2 * th.test.drift))
-    assert len(calls) == n
+    with pytest.raises(UserError, match=f"{MANIFEST} is missing, so their origin is unknown"):
+        tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
+    assert calls == [] and [p.name for p in (out / "chunks").iterdir()] == ["healthy_1000_x.npz"]
 
 
 def test_damaged_chunk_is_reported_and_recomputed(tmp_path, calls):
@@ -129,11 +122,11 @@ def test_damaged_chunk_is_reported_and_recomputed(tmp_path, calls):
     tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
     rows0 = json.loads((out / "metrics.json").read_text())["rows"]
     job = tune.jobs_of(N_RUNS)[3]
-    path = tune.chunk_path(out / "chunks", job)
+    path = out / CHUNK_DIR / f"{tune.chunk_key(job)}.npz"
     with open(path, "r+b") as f:
         f.truncate(500)
     n = len(calls)
-    with pytest.warns(UserWarning, match=rf"{path.name} cannot be read \(BadZipFile.*recomputing it"):
+    with pytest.warns(UserWarning, match=rf"{path.name}: damaged: .*; computing it again"):
         tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
     assert calls[n:] == [job[1:]]
     assert json.loads((out / "metrics.json").read_text())["rows"] == rows0
@@ -141,16 +134,17 @@ def test_damaged_chunk_is_reported_and_recomputed(tmp_path, calls):
 
 def test_chunks_are_written_atomically(tmp_path, calls, monkeypatch):
     """A chunk whose write fails half way (disk full, kill) leaves no file under the chunk's
-    name, so the resume does not take a partial file for a finished chunk."""
-    def broken(file, **arrays):
-        (file.write if hasattr(file, "write") else Path(file).write_bytes)(b"PK\x03\x04 partial")
+    name, nor a checksum for it, so the resume does not take a partial file for a finished chunk;
+    the user gets one line saying why."""
+    def broken(stream, array, **kw):
+        stream.write(b"\x93NUMPY partial")
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(np, "savez", broken)
+    monkeypatch.setattr(np.lib.format, "write_array", broken)
     out = tmp_path / "t"
-    with pytest.raises(OSError, match="No space"):
+    with pytest.raises(UserError, match="No space"):
         tune.run_tune(load_plant(), out, n_runs=N_RUNS, progress=False)
-    assert list((out / "chunks").iterdir()) == []
+    assert [p.name for p in (out / CHUNK_DIR).iterdir()] == [SUMS] and (out / CHUNK_DIR / SUMS).read_text() == ""
 
 
 @pytest.mark.parametrize("where", ["file", "under_file", "proc"])
@@ -188,32 +182,27 @@ def test_users_files_are_not_overwritten_without_force(tmp_path, calls, capsys):
     err = capsys.readouterr().err
     assert "already holds metrics.md, roc.png" in err and "--force" in err
     assert (out / "metrics.md").read_text() == "my notes\n" and (out / "roc.png").read_bytes() == b"my figure"
-    assert calls == [] and not (out / "chunks").exists()
+    assert calls == [] and not (out / CHUNK_DIR).exists()
     assert _tune(out, "--force") == 0
     assert (out / "metrics.md").read_text().startswith("# FDI tuning metrics")
     assert _tune(out) == 0
 
 
-def _hand_made_folder(tmp_path: Path, bound: bool) -> tuple:
-    """A tune folder of hand-made chunks (one per job of N_RUNS runs): (jobs, tag)."""
+def _hand_made_chunks(bound: bool) -> tuple:
+    """Hand-made chunks (one per job of N_RUNS runs): (jobs, tag, chunk key -> arrays)."""
     jobs, tag = tune.jobs_of(N_RUNS), tune.mode_tag(False, bound)
-    (tmp_path / "chunks").mkdir()
-    for j in jobs:
-        np.savez(tune.chunk_path(tmp_path / "chunks", j, tag), **_fake_chunk(None, None, *j[1:], bound=bound))
-    return jobs, tag
+    return jobs, tag, {tune.chunk_key(j, tag): _fake_chunk(None, None, *j[1:], bound=bound) for j in jobs}
 
 
 def test_metrics_json_is_valid_json_with_wrong_isolation(tmp_path):
     """metrics.json has no NaN (null where nothing was measured: a fault case never detected
     has no mean delay) and gives the wrong isolations: 1 of the 5 K_int 0.5 L/min runs, all
     detected within 1 s, was named K_extA -> 0.2; overall 1 of the 16 detected cases x 5 runs."""
-    jobs, tag = _hand_made_folder(tmp_path, False)
-    path = tune.chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "K_extB_0.1"), tag)
-    d = dict(np.load(path))
+    jobs, tag, chunks = _hand_made_chunks(False)
+    d = chunks[tune.chunk_key(next(j for j in jobs if j[0] == "K_extB_0.1"), tag)]
     for key in ("first", "conf_k", "iso_h", "iso_k"):  # never alarmed: no delay to average
         d[key][:] = -1
-    np.savez(path, **d)
-    tune.summarise(tmp_path, jobs, Thresholds.shipped(), tag)
+    tune.summarise(tmp_path, tune.gather(chunks, jobs, tag), Thresholds.shipped())
     text = (tmp_path / "metrics.json").read_text()
     m = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in metrics.json"))
     rows = {(r["fault"], r["size"]): r for r in m["rows"]}
@@ -229,23 +218,17 @@ def test_withdrawn_alarms_are_not_false_alarms(tmp_path):
     confirmed the alarm (conf_k >= 0): of 3 alarmed runs 1 stood -> false-alarm rate 1 / n, the
     trigger rate 3 / n; metrics.md gives both. A fault run whose only confirmed alarm is 1.5 s
     after the onset is not detected within 1 s, whatever its CUSUM did."""
-    jobs, tag = _hand_made_folder(tmp_path, False)
+    jobs, tag, chunks = _hand_made_chunks(False)
     healthy = [j for j in jobs if j[0] == "healthy"]
-    path = tune.chunk_path(tmp_path / "chunks", healthy[0], tag)
-    d = dict(np.load(path))
+    d = chunks[tune.chunk_key(healthy[0], tag)]
     d["max"][:3, 0, 2] = 2.0  # three CUSUM alarms ...
     d["conf_k"][0] = 5000  # ... one of which the bank confirmed
-    np.savez(path, **d)
-    path = tune.chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "K_extA_1"), tag)
-    d = dict(np.load(path))
+    d = chunks[tune.chunk_key(next(j for j in jobs if j[0] == "K_extA_1"), tag)]
     d["conf_k"][0] = d["k_onset"][0] + 1500
-    np.savez(path, **d)
-    path = tune.chunk_path(tmp_path / "chunks", next(j for j in jobs if j[0] == "healthy_long"), tag)
-    d = dict(np.load(path))
+    d = chunks[tune.chunk_key(next(j for j in jobs if j[0] == "healthy_long"), tag)]
     d["max"][:2, 1, 2] = 1.5  # the long cycles: two CUSUM alarms, both confirmed
     d["conf_k"][:2] = 9000
-    np.savez(path, **d)
-    m = tune.summarise(tmp_path, jobs, Thresholds.shipped(), tag)
+    m = tune.summarise(tmp_path, tune.gather(chunks, jobs, tag), Thresholds.shipped())
     n, n_long = m["healthy_runs"], m["long_cycles"]["runs"]
     assert (n, n_long) == (N_RUNS, tune.long_cycle_runs(N_RUNS))
     assert m["false_alarm_rate"] == pytest.approx(1 / n) and m["trigger_rate"] == pytest.approx(3 / n)
@@ -272,8 +255,8 @@ def test_isolation_by_the_flow_the_leak_passed(tmp_path):
     """Each leak run passes 0.6 of its rated flow (hand-made chunks): K_int 0.1 / 0.25 / 0.5 / 1
     L/min fall in the 0.05-0.1, 0.15-0.25, 0.25-0.5 and 0.5-1 L/min bins, 5 runs each, and the
     one wrong isolation (K_int 0.5 L/min) is missing from its bin; offsets have no flow."""
-    jobs, tag = _hand_made_folder(tmp_path, False)
-    m = tune.summarise(tmp_path, jobs, Thresholds.shipped(), tag)
+    jobs, tag, chunks = _hand_made_chunks(False)
+    m = tune.summarise(tmp_path, tune.gather(chunks, jobs, tag), Thresholds.shipped())
     assert m["flow_bins_lpm"] == TUNE.flow_bins_lpm and set(m["isolated_by_flow"]) == set(LEAKS)
     assert m["isolated_by_flow"]["K_int"] == [[0, 0], [5, 5], [0, 0], [5, 5], [4, 5], [5, 5], [0, 0]]
     row = next(r for r in m["rows"] if (r["fault"], r["size"]) == ("K_extB", 0.25))
@@ -304,8 +287,8 @@ def test_metrics_md_tables_with_units_and_no_exclusive_column(tmp_path):
     """metrics.md: no 'exclusive' column with likelihood isolation (it equals 'isolated'), a
     'wrong isolation' column and overall line, the smallest sizes as tables in L/min and %
     (also the bound's)."""
-    jobs, tag = _hand_made_folder(tmp_path, True)
-    m = tune.summarise(tmp_path, jobs, Thresholds.shipped(), tag)
+    jobs, tag, chunks = _hand_made_chunks(True)
+    m = tune.summarise(tmp_path, tune.gather(chunks, jobs, tag), Thresholds.shipped())
     md = (tmp_path / "metrics.md").read_text()
     assert "exclusive" not in md and "{'" not in md
     header = next(line for line in md.splitlines() if line.startswith("| fault | size | runs"))
@@ -342,29 +325,29 @@ def test_roc_curves_are_distinguishable(tmp_path, monkeypatch):
 
 
 def test_worker_pool_after_a_simulation_in_the_same_process(tmp_path):
-    """A forked worker of a process that has run the simulator's OpenMP loop is killed by libgomp,
-    and the tune's pool broke (BrokenProcessPool) when a Python session simulated before tuning.
-    The pools now spawn there (fdi.montecarlo.pool_context): two workers compute real chunks,
-    identical to the same chunks computed here."""
-    from fdi.montecarlo import make_batch, pool_context
+    """A forked worker of a process that has run the simulator's OpenMP loop is killed by libgomp
+    ("fork() called from a process already using GNU OpenMP"), so the tune's pool must not fork
+    there: the chunk store's pool spawns its workers. After a simulation in this process, two
+    workers compute real chunks into the store, identical to the same chunks computed here."""
+    from chunkstore import Store
 
     plant, th = load_plant(), Thresholds.shipped()
     make_batch(plant, 2, 1, duration=0.1)  # the simulator's parallel loop runs in this process
-    assert pool_context().get_start_method() == "spawn"
     jobs = [("healthy", None, 0.0, 2, 1000, "standard"), ("K_extA_1", "K_extA", 1.0, 2, 510_000, "standard")]
     th4 = th.with_(run_length_s=4.0)
-    tune.compute_chunks(plant, th4, tmp_path, jobs, jobs, "t", 2, None, False, False, False)
-    for job in jobs:
-        with np.load(tune.chunk_path(tmp_path, job, "t")) as got:
+    with Store.open(tmp_path, {"test": "pool"}) as store:
+        tune.compute_chunks(store, plant, th4, jobs, "t", workers=2)
+        for job in jobs:
+            got = store.load(tune.chunk_key(job, "t"))
             here = tune.chunk_job(plant, th4, *job[1:])
-            assert set(got.files) == set(here)
+            assert set(got) == set(here)
             for key in here:
                 np.testing.assert_array_equal(got[key], here[key], err_msg=f"{job[0]} {key}")
 
 
 def test_help_states_the_workers_and_runs_rules():
     """--workers is a process pool (dask only with --scheduler); --runs states the fault-run
-    rule of _jobs, checked against it."""
+    rule of jobs_of, checked against it."""
     sub = build_parser()._subparsers._group_actions[0].choices["fdi"]._subparsers._group_actions[0].choices["tune"]
     helps = {a.dest: a.help for a in sub._actions}
     assert "process pool" in helps["workers"] and "(dask)" not in helps["workers"]
