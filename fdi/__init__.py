@@ -6,7 +6,8 @@ One pipeline, one direction, each stage a module returning an immutable, typed r
 * the filter (:mod:`fdi.filter`; :class:`FilterConfig`) -> :class:`FilterOutput`;
 * the change tests (:mod:`fdi.statistics`) -> :class:`Statistics`;
 * the alarms (:mod:`fdi.alarms`);
-* isolation and sizing by the likelihood bank (:mod:`fdi.bank`, :mod:`fdi.isolation`);
+* isolation and sizing by the likelihood bank (:mod:`fdi.bank`, :mod:`fdi.isolation`;
+  :class:`BankDesign`);
 * the diagnosis, which drives the stages (:mod:`fdi.diagnosis`) -> :class:`Diagnosis`.
 
 :func:`replay` runs them on one recording (:mod:`fdi.offline`); :func:`run_tune` evaluates the detector on Monte
@@ -14,6 +15,7 @@ Carlo runs and :func:`analyse` turns those into rates with intervals; :mod:`fdi.
 :class:`Thresholds` from the sensitivity studies.
 """
 
+from .bank import BankDesign
 from .config import (
     CalibrationStates, Constraints, FilterConfig, Guards, Sensors, SigmaPoints, StopRules, UnknownInputStates,
 )
@@ -27,8 +29,8 @@ from .thresholds import Thresholds
 from .tune import run_tune
 
 __all__ = [
-    "CalibrationStates", "Constraints", "Diagnosis", "FilterConfig", "FilterInput", "FilterOutput", "Guards",
-    "K_PER_LPM", "POS_THETA", "POS_X", "Replay", "STATE_NAMES", "Sensors", "SigmaPoints", "Statistics", "StopRules",
+    "BankDesign", "CalibrationStates", "Constraints", "Diagnosis", "FilterConfig", "FilterInput", "FilterOutput",
+    "Guards", "K_PER_LPM", "POS_THETA", "POS_X", "Replay", "STATE_NAMES", "Sensors", "SigmaPoints", "Statistics", "StopRules",
     "Thresholds", "UnknownInputStates", "analyse", "diagnose", "judge", "leak_lpm", "replay", "replay_recording",
     "run_filter", "run_tune",
 ]

@@ -101,6 +101,7 @@ class CalibrationStates:
     faults, as random walks written into the model as nominal * (1 + c): the load mass, the bulk
     modulus and the four valve notch flows, the nuisance the sensitivity studies rank first."""
 
+    #: the parameters estimated, in state order after the base states
     states: tuple = ("m_L", "B_eff", "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT")
     initial_sd: float = 0.02  #: relative initial std of a state not in ``noise``
     walk: float = 0.002  #: relative random-walk std per sqrt(s) of a state not in ``noise``
@@ -140,6 +141,7 @@ class UnknownInputStates:
     """Parameters of :data:`sam.P` whose absolute value the filter estimates as a random walk
     around the plant's: the disturbance flows into the chambers of the mismatch diagnosis."""
 
+    #: the unknown inputs estimated (UNKNOWN_INPUT_SCALE names), after the calibration states
     states: tuple = ()
     #: input -> (initial std, walk per sqrt(s)), SI: 1 L/min and 2 L/min per sqrt(s)
     noise: dict = field(default_factory=lambda: {"Q_dA": (1e-3 / 60, 2e-3 / 60), "Q_dB": (1e-3 / 60, 2e-3 / 60)})
@@ -236,13 +238,13 @@ class FilterConfig:
     process_noise: dict = field(default_factory=lambda: dict(PROCESS_NOISE))
     #: state name -> initial std, SI, for the 12 base states (:data:`INITIAL_SD`)
     initial_sd: dict = field(default_factory=lambda: dict(INITIAL_SD))
-    sigma_points: SigmaPoints = field(default_factory=SigmaPoints)
-    sensors: Sensors = field(default_factory=Sensors)
-    calibration: CalibrationStates = field(default_factory=CalibrationStates)
-    unknown_inputs: UnknownInputStates = field(default_factory=UnknownInputStates)
-    constraints: Constraints = field(default_factory=Constraints)
-    guards: Guards = field(default_factory=Guards)
-    stops: StopRules = field(default_factory=StopRules)
+    sigma_points: SigmaPoints = field(default_factory=SigmaPoints)  #: the unscented transform's spread
+    sensors: Sensors = field(default_factory=Sensors)  #: the measurement noise
+    calibration: CalibrationStates = field(default_factory=CalibrationStates)  #: relative parameter errors learnt
+    unknown_inputs: UnknownInputStates = field(default_factory=UnknownInputStates)  #: absolute inputs learnt
+    constraints: Constraints = field(default_factory=Constraints)  #: how estimates are kept physical
+    guards: Guards = field(default_factory=Guards)  #: when a diverging filter is reset
+    stops: StopRules = field(default_factory=StopRules)  #: what the filter learns on and near the end stops
     #: V: the input's hold band, |u| at most this: the valve at rest (calibration and stop holds)
     hold_band_V: float = 0.3
 

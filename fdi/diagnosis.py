@@ -48,6 +48,7 @@ class Diagnosis:
     likelihood: dict = field(default_factory=dict)  #: the bank's evidence [nats] and the alarms it judged
 
     def to_json(self) -> str:
+        """diagnosis.json's text."""
         return json.dumps(asdict(self), indent=2, default=float)
 
 
@@ -73,7 +74,8 @@ def judge(out: FilterOutput, th: Thresholds, stats: Statistics | None = None, ba
     first confirmed one (with the earlier withdrawn alarms), else its last withdrawn one.
     ``stats``: :func:`fdi.statistics.statistics` of ``out`` (computed here if None); ``baseline``
     as given to it; ``k_stop`` (per row): never judged beyond; ``size``, ``pairs``: the sizing and
-    several-faults stages (``pairs`` None: the thresholds' ``several_faults``)."""
+    several-faults stages (``pairs`` None: the thresholds' ``several_faults``); ``th``: the
+    thresholds; ``design``: the likelihood bank's settings."""
     dt = sample_step(out.t)
     stats = statistics(out, th, baseline) if stats is None else stats
     pairs = th.confirmation.several_faults if pairs is None else pairs
@@ -155,7 +157,7 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0, stats:
     """The diagnosis of run b of the filter output ``out`` under the thresholds ``th`` (default:
     the shipped ones). ``stats``: its statistics (computed if None); ``baseline`` (B, 4): healthy
     values of the fault parameters (None: the recording's own); ``decision``: the bank's decision
-    on run b if already judged (:func:`judge`)."""
+    on run b if already judged (:func:`judge`); ``design``: the likelihood bank's settings."""
     th = Thresholds.shipped() if th is None else th
     stats = stats if stats is not None else statistics(out, th, baseline)
     t = out.t

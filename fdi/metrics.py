@@ -37,9 +37,9 @@ def _load_bin(m):
 
 
 def analyse(cases: dict, th: Thresholds) -> dict:
-    """The metrics of a tune's runs: ``cases``, case name ("healthy", "healthy_long", "K_int_0.25",
-    ...) -> its runs' per-run arrays (fdi.tune's chunk keys). Rates are fractions of runs with their
-    exact intervals (fdi.rates), delays in s."""
+    """The metrics of a tune's runs under the thresholds ``th``: ``cases``, case name ("healthy",
+    "healthy_long", "K_int_0.25", ...) -> its runs' per-run arrays (fdi.tune's chunk keys). Rates
+    are fractions of runs with their exact intervals (fdi.rates), delays in s."""
     healthy = cases["healthy"]
     hmax = healthy["max"][:, :, 2].max(axis=1)  # per run: max over hypotheses of g/h
     level = th.derived.false_alarm_level

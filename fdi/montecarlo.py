@@ -3,6 +3,7 @@ and model uncertainty, filtered many at a time by the batched UKF."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -11,7 +12,8 @@ from sam import P, Plant, profiles
 from sam.constants import LPM
 from sam.hydraulics import fault_leakages_batch
 
-from .synth import POSITION_SENSORS, lpm, profile, random_input, simulate_runs
+from .faults import FAULTS
+from .synth import INPUT_KINDS, POSITION_SENSORS, lpm, profile, random_input, simulate_runs
 
 #: The nuisance box of the threshold study and the Monte Carlo: Table 1's parameters that a
 #: calibration leaves uncertain, their relative half-widths (each valve notch's flow and
@@ -22,7 +24,6 @@ NUISANCE = {
     "B_eff": 0.10, "b": 0.20,
 }
 LOAD_RANGE = (0.0, 800.0)  #: kg: the load, unknown to the filter
-INPUTS = ("sine", "cycle", "prbs")
 #: The issue's 20-60 s extend/retract cycles as a healthy population of their own (the tune's
 #: "healthy_long" runs; not in the threshold studies: fdi.synth.CYCLE_PERIOD_S says why). Each
 #: run: a random period, amplitude and phase, no dwell or a dwell of half of each stroke, and a
@@ -55,6 +56,24 @@ class TuneDesign:
     load_bins_kg: tuple = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))  #: load thirds the rates are split by
     #: L/min: edges of the flow a leak passed in its scored second, for isolation by flow
     flow_bins_lpm: tuple = (0.05, 0.1, 0.15, 0.25, 0.5, 1.0)
+
+    def __post_init__(self):
+        for name in ("fault_run_s", "dt", "within_s", "reference_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf):
+                raise ValueError(f"TuneDesign.{name} = {v!r}: must be a duration > 0 s")
+        lo, hi = self.onset_range_s
+        if not 0 < lo <= hi or hi + self.within_s > self.fault_run_s:
+            raise ValueError(f"TuneDesign.onset_range_s = {self.onset_range_s!r}: must lie in (0, fault_run_s - "
+                             f"within_s] = (0, {self.fault_run_s - self.within_s:g}] s, the scored second in the run")
+        if isinstance(self.chunk_runs, bool) or not isinstance(self.chunk_runs, int) or self.chunk_runs < 1:
+            raise ValueError(f"TuneDesign.chunk_runs = {self.chunk_runs!r}: must be a whole number >= 1")
+        if not 0 < self.target_rate < 1:
+            raise ValueError(f"TuneDesign.target_rate = {self.target_rate!r}: must be a fraction of runs in (0, 1)")
+        for fault, sizes in self.fault_sizes.items():
+            if fault not in FAULTS or not sizes or any(s == 0 for s in sizes):
+                raise ValueError(f"TuneDesign.fault_sizes[{fault!r}] = {sizes!r}: must be non-zero sizes of one of "
+                                 f"{', '.join(FAULTS)}")
 
 
 TUNE = TuneDesign()
@@ -91,7 +110,7 @@ def draw_truth(plant: Plant, n: int, rng: np.random.Generator, nuisance: bool = 
 
 
 def draw_inputs(n: int, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    kinds = rng.choice(INPUTS, n)
+    kinds = rng.choice(INPUT_KINDS, n)
     return np.stack([random_input(str(kind), t, rng) for kind in kinds]) if n else np.empty((0, len(t)))
 
 

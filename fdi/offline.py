@@ -37,10 +37,10 @@ class Replay:
     """A replayed recording: the filter's output, the residuals and statistics the detector ran
     (restarted after withdrawn alarms), the diagnosis."""
 
-    output: FilterOutput
+    output: FilterOutput  #: the filter's output over the recording (one run)
     residuals: dict  #: name -> (1, T)
     statistics: dict  #: test -> (1, T)
-    diagnosis: Diagnosis
+    diagnosis: Diagnosis  #: what diagnosis.json holds
 
 
 def learn_reference(ref: Recording, plant: Plant, cfg: FilterConfig, *,
@@ -81,7 +81,9 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None, thr
            drop_out_of_range: bool = False, baseline: Recording | np.ndarray | None = None,
            reference: Recording | None = None, plant_name: str = "plant", position_sensor: str | None = None,
            design: BankDesign = DESIGN) -> Replay:
-    """Filter one recording and diagnose it.
+    """Filter one recording ``rec`` (its measured columns only) with ``cfg`` (default: the shipped
+    filter) given the ``plant``, and diagnose it; ``drop_out_of_range``: drop samples outside the
+    sensors' ranges instead of refusing the recording (:func:`fdi.recording.filter_input`).
 
     ``thresholds``: None, the shipped file of the recording's position sensor (``position_sensor``,
     or when None the one :func:`fdi.recording.detect_position_sensor` finds); a file derived for
@@ -130,8 +132,11 @@ def replay_recording(rec: Recording, plant: Plant, out_dir, *, force: bool = Fal
                      thresholds: Thresholds | None = None, drop_out_of_range: bool = False, figure: bool = True,
                      baseline=None, reference=None, plant_name: str = "plant",
                      position_sensor: str | None = None) -> Diagnosis:
-    """Replay a recording (:func:`replay`) and write estimates.csv, residuals.csv, diagnosis.json
-    and replay.png into out_dir (an existing file only with ``force``)."""
+    """Replay a recording ``rec`` given the ``plant`` (:func:`replay`, which documents
+    ``thresholds``, ``drop_out_of_range``, ``baseline``, ``reference``, ``plant_name`` and
+    ``position_sensor``) and write estimates.csv, residuals.csv, diagnosis.json and, with
+    ``figure``, replay.png into ``out_dir`` (an existing file only with ``force``). Returns the
+    diagnosis."""
     out_dir = output_folder(out_dir, OUTPUT_FILES, force, create=False)
     sensor = position_sensor or detect_position_sensor(rec, plant)
     thresholds = Thresholds.shipped(sensor) if thresholds is None else thresholds

@@ -27,6 +27,7 @@ from sam.measurement import ENCODER_RESOLUTION_RAD
 N_MODEL = 7
 #: Augmented states beyond the model state; each drives the parameter of its name.
 AUG_PARAMS = ("K_int", "K_extA", "K_extB", "offset", "F_d")
+#: The base states in order: the model states, then the augmented ones.
 STATE_NAMES = tuple(S.__members__) + AUG_PARAMS
 N_AUG = len(STATE_NAMES)
 I_KINT, I_KEXTA, I_KEXTB, I_OFFSET, I_FD = 7, 8, 9, 10, 11
@@ -71,5 +72,5 @@ LOG_2PI = math.log(2.0 * math.pi)  #: constant of the Gaussian log-density
 
 
 def leak_lpm(K: np.ndarray) -> np.ndarray:
-    """Leak coefficient [m^3/(s Pa^0.5)] -> L/min at 10 MPa (sam.hydraulics.leak_lpm, on arrays)."""
+    """Leak coefficients K [m^3/(s Pa^0.5)] -> L/min at 10 MPa (sam.hydraulics.leak_lpm, on arrays)."""
     return _leak_lpm(np.asarray(K))

@@ -36,15 +36,14 @@ from sam import P, Plant
 
 from .conditions import held, long_stroke_mask, regimes
 from .config import FilterConfig
-from .faults import HYPOTHESES, NOTCH_TRIGGER, PARAMS, REGIMES
+from .faults import HYPOTHESES, NOTCH_STATES, NOTCH_TRIGGER, PARAMS, REGIMES
 from .filter import run_filter
 from .montecarlo import LOAD_RANGE, NUISANCE
 from .statistics import change_spread, cusum, cusum_drift, has_notch_states, notch_armed, notch_jump, own_baseline
-from .synth import POSITION_SENSORS, random_input, simulate_runs
+from .synth import INPUT_KINDS, POSITION_SENSORS, random_input, simulate_runs
 from .thresholds import MAX_RUN_LENGTH_S, MIN_RUN_LENGTH_S, Thresholds, describe, to_toml
 
-NOTCHES = ("PA", "AT", "PB", "BT")
-INPUT_KINDS = ("sine", "cycle", "prbs")
+NOTCHES = tuple(s.removeprefix("Q_N_") for s in NOTCH_STATES)  #: the valve's four notches
 LEAKAGE_STUDY = Path(__file__).resolve().parents[1] / "scenarios" / "gsa" / "paper_leakage.toml"
 #: The files :func:`write_thresholds` writes.
 OUTPUT_FILES = ("thresholds.toml", "thresholds.md", "thresholds_gsa.json")
@@ -58,7 +57,7 @@ class StudyDesign:
     #: base sample size of the nuisance study: its healthy runs also set h, a high quantile of
     #: their maxima, and a Saltelli design has only 2N distinct experiments among its N (k + 2) runs
     n_nuisance: int = 128
-    seed: int = 2011
+    seed: int = 2011  #: the Saltelli designs' seed (the nuisance study's is seed + 1)
     sample_dt_s: float = 1e-3  #: s: the recordings' sampling step (a whole multiple of sim_dt)
     position_sensor: str = "encoder"  #: the position channel simulated (fdi.synth.POSITION_SENSORS)
     #: s: the nuisance study's healthy runs, over which the false-alarm level is stated: long
@@ -198,7 +197,8 @@ def _nuisance_params(X: np.ndarray, nominal: np.ndarray) -> np.ndarray:
 
 
 def _nuisance_model(X: np.ndarray, th: Thresholds, nominal: np.ndarray, design: StudyDesign):
-    out = study_runs(_nuisance_params(X, nominal), X[:, -2], X[:, -1], nominal, design, duration=th.derived.run_length_s)
+    out = study_runs(_nuisance_params(X, nominal), X[:, -2], X[:, -1], nominal, design,
+                     duration=th.derived.run_length_s)
     dev, sd, reg, hidden, ready = _dev(out, th)
     w = th.window
     return (_regime_stat(dev, reg, hidden, ready, w.warmup_s + w.baseline_s, "rms", th.derived.sample_dt_s),
@@ -323,7 +323,8 @@ def compute_thresholds(plant: Plant, design: StudyDesign = StudyDesign(), worker
     h = {k: max(level_threshold(v, q), d.h_floor) for k, v in maxima.items()}
     dt = th1.derived.sample_dt_s
     th = th1.with_(h=h, false_alarm_level=d.false_alarm_level, trigger_level=d.trigger_level,
-                   nuisance_sd={p: float(np.sqrt(np.mean(dev[:, i, int(0.5 / dt):] ** 2))) for i, p in enumerate(PARAMS)},
+                   nuisance_sd={p: float(np.sqrt(np.mean(dev[:, i, int(0.5 / dt):] ** 2)))
+                                for i, p in enumerate(PARAMS)},
                    source=(f"samfdi fdi thresholds: leakage GSA N={d.n_leak} ({d_leak.n_runs} runs), nuisance GSA "
                            f"N={d.n_nuisance} ({d_nui.n_runs} runs), seed {d.seed}, healthy runs {d.run_length_s:g} s"
                            + ("" if d.position_sensor == "encoder" else f", {d.position_sensor} position sensor")

@@ -17,6 +17,7 @@ from sam.measurement import quantise_angle
 from sam.geometry import joint_angle
 
 from .config import Sensors
+from .faults import FAULTS
 from .filter import FilterInput
 from .states import POS_THETA, POS_X
 
@@ -25,7 +26,6 @@ from .states import POS_THETA, POS_X
 #: assumes for one (fdi.config.Sensors.x_noise, 10 um)
 POSITION_SENSORS = {"encoder": {"position": "theta"}, "linear": {"position": "x", "x_noise": Sensors.x_noise}}
 
-FAULT_NAMES = ("K_int", "K_extA", "K_extB", "offset")
 
 
 def profile(kind: str, value: float, t: np.ndarray, t0: float = 0.0, t1: float | None = None,
@@ -62,6 +62,10 @@ def input_signal(kind: str, t: np.ndarray, amplitude: float = 3.0, frequency: fl
 #: threshold studies. The 20-60 s cycles are not drawn: long strokes have a rule of their own
 #: (the thresholds' long_stroke_s; why: docs/fdi-design.md, "Long strokes").
 CYCLE_PERIOD_S = (2.0, 4.0)
+
+
+#: the kinds of random experiment (:func:`random_input`) of the Monte Carlo and the studies
+INPUT_KINDS = ("sine", "cycle", "prbs")
 
 
 def random_input(kind: str, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -137,7 +141,7 @@ def simulate_runs(params: np.ndarray, u: np.ndarray, dt: float, *, faults: dict 
         kind = POS_X
     if nominal is None:
         nominal = params.copy()
-        for name in FAULT_NAMES:
+        for name in FAULTS:
             nominal[:, P[name]] = 0.0
         nominal[:, P.F_d] = 0.0
     inp = FilterInput(dt=dt, u=np.ascontiguousarray(u), pA=pA, pB=pB, pos=pos, pos_kind=kind,

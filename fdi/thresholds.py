@@ -257,12 +257,12 @@ class Thresholds:
     """The detector's settings (see docs/fdi.md). ``Thresholds.shipped()`` reads the shipped file;
     ``Thresholds()`` is placeholder defaults. A variant: ``th.with_(drift=1.5, run_length_s=4.0)``."""
 
-    window: Window = field(default_factory=Window)
-    regimes: Regimes = field(default_factory=Regimes)
-    test: ChangeTest = field(default_factory=ChangeTest)
-    fit: ModelFit = field(default_factory=ModelFit)
-    confirmation: Confirmation = field(default_factory=Confirmation)
-    derived: Derivation = field(default_factory=Derivation)
+    window: Window = field(default_factory=Window)  #: when the tests look
+    regimes: Regimes = field(default_factory=Regimes)  #: each sample's operating conditions
+    test: ChangeTest = field(default_factory=ChangeTest)  #: the CUSUMs and the notch-flow trigger
+    fit: ModelFit = field(default_factory=ModelFit)  #: the model-fit (NIS) alarm
+    confirmation: Confirmation = field(default_factory=Confirmation)  #: the bank's confirmation and naming
+    derived: Derivation = field(default_factory=Derivation)  #: what they were derived for
 
     def __post_init__(self):
         for name, cls in GROUPS.items():
@@ -312,6 +312,7 @@ class Thresholds:
         return {k: v for g in GROUPS for k, v in asdict(getattr(self, g)).items()}
 
     def to_json(self) -> str:
+        """The flat table (:meth:`flat`) as JSON (thresholds_used.json; the tune's fingerprint)."""
         return json.dumps(self.flat(), indent=2)
 
 

@@ -183,7 +183,9 @@ def long_cycle_runs(n_runs: int) -> int:
 def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, scheduler: str | None = None,
              progress: bool = True, thresholds: Thresholds | None = None, reference: bool = False,
              bound: bool = False, force: bool = False) -> dict:
-    """The Monte Carlo into ``out_dir`` (resumable); ``reference``: every machine calibrated on a
+    """The Monte Carlo of ``n_runs`` healthy runs (and the fault runs of :func:`jobs_of`) on the
+    ``plant`` with ``thresholds`` (default: the shipped ones) into ``out_dir`` (resumable), with a
+    progress bar if ``progress``; ``reference``: every machine calibrated on a
     healthy reference recording first; ``bound``: also the evidence at the known onset
     (:mod:`fdi.bound`; about three times the work). Each mode's chunks are keyed apart.
     ``force``: overwrite the files a tune writes in a folder that is not a tune folder.
@@ -224,8 +226,9 @@ def compute_chunks(store: Store, plant: Plant, th: Thresholds, jobs: list, tag: 
     executor = "dask" if scheduler else "processes" if workers > 1 else "inline"
     chunks, computed = {}, []
     t0 = time.perf_counter()
-    for chunk in compute(store, chunk_job, tasks, executor=executor, workers=workers if executor == "processes" else None,
-                         scheduler=scheduler, progress=progress, desc="fdi tune", unit="run", sizes=sizes):
+    pool = workers if executor == "processes" else None
+    for chunk in compute(store, chunk_job, tasks, executor=executor, workers=pool, scheduler=scheduler,
+                         progress=progress, desc="fdi tune", unit="run", sizes=sizes):
         chunks[chunk.key] = chunk.arrays
         if not chunk.reused:
             computed.append(chunk.key)
