@@ -262,8 +262,7 @@ def run_bank_starts(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: 
     (seeded from the reference), and one bank from each later candidate onset tau of
     :func:`candidate_starts` seeded from that first bank's HEALTHY filter at tau (calibration
     held at the reference's values at k0, so that a fault between k0 and tau cannot be learnt
-    as calibration, as the reference's random-walk calibration would: measured, an offset of
-    -5 % then looked like K_int); per hypothesis H the evidence averaged over the starts
+    as calibration, as the reference's random-walk calibration would); per hypothesis H the evidence averaged over the starts
     (equal prior):
 
         L_H(k) = log mean_tau exp(L_none(k0..tau) + L_H,tau(tau+1..k)),
@@ -271,10 +270,9 @@ def run_bank_starts(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: 
     (for k <= tau the term is L_none(k0..k); the bank from tau is seeded with the healthy
     posterior at tau, so it counts from tau + 1). Two run_filter calls. ``later_none`` False:
     "none" runs from k0 only, its L_none(k0..k) for every start, for a bank whose "none" only
-    seeds (the naming bank when a confirmation bank judges the alarm, :func:`_episode`): a later
-    start is seeded with the DIAGONAL of the healthy posterior, and that restart alone moved
-    "none" by up to 25 nats over 0.5 s (tests/test_fdi_isolate.py), so the evidence of a fault
-    over "none" needs "none" restarted alike. Returned on the grid
+    seeds (the naming bank when a confirmation bank judges the alarm): a later start is seeded
+    with the DIAGONAL of the healthy posterior, which alone moves "none" by tens of nats, so the
+    evidence of a fault over "none" needs "none" restarted alike. Returned on the grid
     [k0[i], k1[i]) like run_bank's; each hypothesis' estimates, state and ``start`` come from
     its most likely start at the window's last sample."""
     dt = sample_step(out.t)
@@ -429,9 +427,7 @@ def run_pairs(out: FilterOutput, ref: FilterOutput, first: BankResult, rows: np.
     parameter back at its healthy value and the free ones given their prior again. The restart
     is what makes the comparison fair: a filter started before the onset has learnt
     "no fault" from the healthy samples and then needs a second parameter to follow the step,
-    which a pair has (measured: +35 to +140 nats for a pair on a single 0.5 L/min step,
-    nominal plant, bank from 0.25 s before the onset; -0.1 to -50 nats after the restart).
-    ONE run_filter call (B = runs x 10)."""
+    which a pair has (docs/fdi-design.md, "Several faults"). ONE run_filter call (B = runs x 10)."""
     hs = [first.hyps(i).index(b) for i, b in enumerate(best)]
     ks = first.k0 + first.n_valid
     z0 = np.stack([first.z_last[i, h] for i, h in enumerate(hs)])

@@ -12,12 +12,10 @@ Used by ``samfdi fdi tune --bound``: the healthy runs' largest evidence for any 
 the bound's threshold at the stated false-alarm level, and a fault run counts as "detectable"
 when its own hypothesis clears it, "isolable" when it also beats every other fault by the
 isolation margin. The bound knows what no detector knows (the onset), so it is an upper
-reference for our detector, not a detector (docs/fdi.md, "How far from what the data carry").
+reference for our detector, not a detector (docs/fdi-design.md, "The bound").
 
-Why the calibration is uncertain here and not held (as in the isolation bank): held at the
-reference's values, its small errors show as tens to hundreds of nats for some fault in
-healthy runs (measured, 230 held-out runs: 99th percentile of the best fault over healthy
-695 nats held, 27 nats as constant states), which would hide what the faults carry.
+The calibration is uncertain here, not held as in the isolation bank: held at the reference's
+values, its small errors show as hundreds of nats for some fault in healthy runs.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ before any fault can hide in them: :func:`learn` reads them at the reference's l
 :func:`apply` writes them into the nominal plant of another recording and narrows the priors
 to what the reference left uncertain. A 0.25 L/min leak is about 1 % of the valve's flow, so a
 notch flow known to +-2 % can absorb it while the cylinder moves; known to +-0.5 % it cannot
-(docs/fdi-history.md, "Session 9").
+(docs/fdi-design.md, "Calibration from a reference").
 """
 
 from __future__ import annotations
@@ -24,14 +24,11 @@ from .filter import FilterInput, FilterOutput
 #: Calibration states carried over: properties of the machine, not of the run. The load mass
 #: is not one: another recording may lift another load.
 MACHINE_STATES = ("Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT", "B_eff")
-#: Floor of a carried-over prior std (relative). The calibration random walk (q_calib,
-#: 0.2 %/sqrt(s)) holds the posterior std of the notch flows at 0.35-0.5 % after 4-10 s of
-#: healthy data (measured on 12 runs, loads 0-800 kg).
+#: Floor of a carried-over prior std (relative): about what the calibration random walk
+#: (0.2 %/sqrt(s)) leaves of a notch flow after a few seconds of healthy data.
 MIN_PRIOR_SD = 0.003
-#: The carried prior std is this many posterior stds. The posterior is optimistic: over 1000
-#: notch-flow calibrations on healthy 4 s references (tune machines, another load and input),
-#: the rms of (learnt - true effective factor) / posterior std was 1.05 with cycle inputs,
-#: 1.35 with sines and 1.97 with PRBS (11 % beyond 3); the errors' rms 0.6-0.84 %.
+#: The carried prior std is this many posterior stds: the posterior is optimistic, most of all
+#: after PRBS inputs (docs/fdi-design.md, "Calibration from a reference").
 SD_INFLATION = 2.0
 
 

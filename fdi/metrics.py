@@ -148,7 +148,7 @@ def _fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
         "wrong_isolation": float(wrong.sum() / decided.sum()) if decided.any() else float("nan"),
         "decisions_within_1s": int(decided.sum()), "wrong_decisions": int(wrong.sum()),
     }
-    if "leak_flow_lpm" in d:  # chunks from before session 28 have no flows
+    if "leak_flow_lpm" in d:  # leak runs only: an offset passes no flow
         row["leak_flow_median_lpm"] = float(np.median(d["leak_flow_lpm"]))
         row["isolated_by_flow"] = _by_flow(isolated, d["leak_flow_lpm"])
     if bnd is not None:
@@ -180,7 +180,7 @@ def _flow_totals(rows: list) -> dict:
 def _smallest_sizes(rows: list, has_bound: bool) -> tuple:
     """({key: smallest |size| met}, {key: [per load third]}, {key: the bound's}, {key: smallest
     |size| shown met by its interval}) with keys K_int, K_extA, K_extB, offset+, offset-
-    (:func:`_smallest`; sizes as in TUNE.fault_sizes)."""
+    (:func:`smallest_met`; sizes as in TUNE.fault_sizes)."""
     smallest, smallest_by_load, smallest_bound, smallest_shown = {}, {}, {}, {}
     for fault in TUNE.fault_sizes:
         for sign in ((1, -1) if fault == "offset" else (1,)):

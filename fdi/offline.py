@@ -184,7 +184,7 @@ def _write_residuals(path: Path, t, res: dict, stats: dict, th: Thresholds) -> N
 
 def write_csv(path: Path, cols: dict) -> None:
     """Columns (name -> (T,) array) as CSV, each value as '%.17g' (reads back to the same
-    float64; 'nan' where undefined): np.savetxt, measured the fastest of the writers tried."""
+    float64; 'nan' where undefined): np.savetxt (the fastest writer: benchmarks/bench_fdi.py)."""
     names = list(cols)
     data = np.column_stack([np.asarray(cols[n], dtype=float) for n in names])
     np.savetxt(path, data, fmt="%.17g", delimiter=",", header=",".join(names), comments="")

@@ -195,7 +195,7 @@ class ChangeTest:
         _check(self)
 
     def sd_weight(self, param: str) -> float:
-        """The weight of the filter's std in ``param``'s change residual (:attr:`filter_sd_weight`)."""
+        """The weight of the filter's std in ``param``'s change residual (``filter_sd_weight``)."""
         return float(self.filter_sd_weight.get(param, 1.0))
 
 
@@ -312,7 +312,7 @@ class Thresholds:
         return {k: v for g in GROUPS for k, v in asdict(getattr(self, g)).items()}
 
     def to_json(self) -> str:
-        """The flat table (:meth:`flat`) as JSON (thresholds_used.json; the tune's fingerprint)."""
+        """The flat table (:meth:`Thresholds.flat`) as JSON (thresholds_used.json; the tune's fingerprint)."""
         return json.dumps(self.flat(), indent=2)
 
 
