@@ -83,10 +83,7 @@ def test_reference_calibrates_and_isolates_a_small_leak(tmp_path, capsys):
     """The mis-rated machine at 300 kg, a 0.25 L/min K_int step at 2 s under a 0.4 Hz sine.
     With `--reference` (6 s of a healthy cycle at 600 kg, another load) it is detected and
     isolated as K_int within 1 s, and the learnt notch flows are the mis-rating (Q_N_PB x 1.02,
-    Q_N_AT x 0.98). (Until session 10 this was the one case of 54, K_int / K_extA / K_extB x
-    sine / cycle / PRBS x 150 / 300 / 500 kg x 2 seeds, that the reference turned: the plant
-    file's notch flows hid it. The session-11 detector isolates it within 1 s without the
-    reference too.) The CLI prints the learnt calibration and writes it into diagnosis.json; a
+    Q_N_AT x 0.98). The CLI prints the learnt calibration and writes it into diagnosis.json; a
     missing reference file is one line and exit 2."""
     rec = tmp_path / "leak.csv"
     ref = tmp_path / "healthy.csv"

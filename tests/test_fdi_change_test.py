@@ -1,4 +1,4 @@
-"""The change test of fdi.detect: the CUSUM with memory (closed forms), and what the session-11
+"""The change test of fdi.statistics: the CUSUM with memory (closed forms), and what the shipped
 thresholds promise over long healthy recordings."""
 
 from __future__ import annotations
@@ -199,7 +199,7 @@ def test_change_residual_spread_follows_the_weights():
 
 
 def test_restart_relearns_only_the_wandering_baselines():
-    """After a withdrawn alarm the tests restart (detect.restarted) with the baselines of
+    """After a withdrawn alarm the tests restart (fdi.statistics.restarted) with the baselines of
     K_int and the offset re-learnt as the run's mean estimates over the rebase_s before the restart,
     and those of the external leaks kept: each restarted statistic equals the test run from that
     sample with exactly those baselines; a run not restarted keeps all of its own."""
@@ -251,11 +251,11 @@ def test_tune_runs_last_what_the_level_is_stated_for():
     assert run_seconds(th, "K_int") == TUNE.fault_run_s == 4.0
 
 
-def test_random_input_draws_in_the_order_of_sessions_1_to_10():
+def test_random_input_draws_in_a_fixed_order():
     """The studies and the Monte Carlo share fdi.synth.random_input; it draws amplitude, frequency,
     PRBS seed and cycle period in that order, so that the shipped thresholds (seeded draws) are
     reproducible: the same signal and the same generator state as the explicit draws, with the
-    ranges of sessions 1-10 written out (amplitude 2-4 V, 0.25-0.6 Hz, cycle period 2-4 s)."""
+    ranges written out (amplitude 2-4 V, 0.25-0.6 Hz, cycle period 2-4 s)."""
     from fdi.synth import input_signal, random_input
     t = np.arange(3000) * DT
     for kind in ("sine", "cycle", "prbs"):
@@ -273,9 +273,8 @@ def test_long_healthy_runs_stay_healthy():
     apart from the thresholds' studies and the tune's) at most one has an alarm that stands (the
     bank confirms it, as replay and the tune judge it), and the CUSUM triggers no more runs than
     the trigger level the h were set for allows (10 % of runs; at most 7 of 30, which a rate of
-    10 % exceeds with probability 0.8 %). With the session-10 rule (4 s runs, no memory) 44 of 100
-    such runs false-alarmed (docs/fdi.md, "Long recordings"). Until session 21 this test counted
-    the triggers as alarms; session 22's thresholds trigger on 4 of these 30, all withdrawn."""
+    10 % exceeds with probability 0.8 %). Thresholds for 4 s runs without the CUSUM's memory
+    false-alarm on such runs (docs/fdi-design.md, "The change test")."""
     from scipy.stats import binom
 
     from sam import load_plant
@@ -306,10 +305,9 @@ def _healthy_scenarios():
 @pytest.mark.parametrize("scenario", _healthy_scenarios(), ids=lambda f: f.stem)
 def test_shipped_healthy_scenarios_are_healthy_from_the_encoder_alone(scenario):
     """The real SAM has only the encoder. Each shipped healthy scenario (4-60 s, 0-800 kg, step,
-    sine, PRBS, cycles, a load change), replayed from theta alone (x dropped), is "healthy".
-    With the session-10 thresholds the 10 s PRBS at 494 kg (offset- at 9.3 s) and the 40 s cycle
-    (from 8.5 s on, in its 13 s extension) false-alarmed this way; with the 20 s thresholds and
-    the 1e-4 rad encoder floor, the 40 s cycle still did (K_int at 14.8 s)."""
+    sine, PRBS, cycles, a load change), replayed from theta alone (x dropped), is "healthy"
+    (the 10 s PRBS and the 40 s cycle are the ones that need the 20 s thresholds, the encoder
+    floor and the long-stroke rule)."""
     from sam import Recording, load_plant
     from sam.scenario import load_scenario, run_scenario
     from fdi import replay
@@ -349,10 +347,9 @@ def test_restarted_tests_relearn_the_baseline():
 @pytest.mark.parametrize("seed", [22, 31, 32])
 def test_reversal_after_a_long_steady_stroke_stays_healthy(tmp_path, seed):
     """A healthy 3 V cycle of 30 s period at 650 kg from x = 50 mm (a 15 s extension at 1.5 cm/s
-    that does not reach the stop, then a retraction), replayed from the encoder: healthy. Until
-    session 17 the filter's calibration states drifted along what a steady stroke leaves unseen
-    (m_L +46 -> +154 %, B_eff -1 -> -14 %) and snapped back at the reversal, which the bank read
-    as K_int (all three seeds false-alarmed at 15.4-15.6 s); CalibrationStates.hold_after_s
+    that does not reach the stop, then a retraction), replayed from the encoder: healthy. Left
+    free, the filter's calibration states drift along what a steady stroke leaves unseen and
+    snap back at the reversal, which the bank reads as K_int; CalibrationStates.hold_after_s
     stops their random walk inside long strokes, in the detecting filter and the bank's reference."""
     from dataclasses import replace
 
@@ -419,7 +416,7 @@ def test_before_motion_covers_the_initial_rest_and_the_warm_up_after_it():
     u[1, :] = 2.0  # moving from the first sample
     rng = np.random.default_rng(5)
     mean = np.zeros((3, T, 18))
-    mean[:, :, 0], mean[:, :, 1] = 8e6, 3e6  # p_A, p_B [Pa]: not balanced (detect.balanced)
+    mean[:, :, 0], mean[:, :, 1] = 8e6, 3e6  # p_A, p_B [Pa]: not balanced (fdi.conditions.balanced)
     mean[:, :, 7:11] = 1e-10 + 1e-12 * rng.standard_normal((3, T, 4))
     mean[0, :2500, 7] = 5e-9  # what a rest shows: not the baseline of the moving machine
     out = SimpleNamespace(t=t, u=u, mean=mean, std=np.ones_like(mean), inp=None)
@@ -440,9 +437,8 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     """Three healthy 20 s runs of the tune's long-cycle population (fdi.montecarlo.LONG_CYCLES)
     that rest 1.6, 3.0 and 6.3 s before their first stroke, unknown load 378-524 kg, from the
     encoder, judged as replay and the tune judge them (bank confirmation): none false-alarms.
-    With the baseline learnt at rest, as until session 18, each false-alarmed (K_int, K_int,
-    K_extA) within 0.2 s of its first motion; since session 21 (the model without its chatter on
-    the pressure rails, thresholds re-derived) the two K_int ones still do, the third no longer."""
+    With the baseline learnt at rest instead of from the first motion, the two K_int ones
+    false-alarm within 0.2 s of their first motion (checked below)."""
     from dataclasses import replace
 
     from sam import load_plant

@@ -82,7 +82,7 @@ def bank_runs():
 
 def test_the_reference_run_over_the_whole_record_is_the_same_up_to_each_episode(bank_runs):
     """Later episodes of a replay read the reference at their own start from ONE run over the
-    whole record (fdi.isolate.reference_rows): the reference must be causal, i.e. the run to
+    whole record (fdi.bank.reference_rows): the reference must be causal, i.e. the run to
     k0 + 1 and the run to the end agree on [0, k0], to round-off, in every state and std."""
     out, ref, rows, k0, k1, bank = bank_runs
     T = out.mean.shape[1]
@@ -340,7 +340,7 @@ def test_diagnosis_names_several_faults(pair_decisions):
 def test_not_isolable_names_the_other_member_of_each_leading_pair(pair_decisions):
     """When pairs lead the best single fault but not each other, the diagnosis names the best
     single fault first and then each other member, whichever side of the pair's name it is on
-    (until session 13 the second name was taken, which named K_int itself for "K_extA+K_int")."""
+    (taking the pair's second name would name K_int itself for "K_extA+K_int")."""
     from dataclasses import replace
 
     from fdi import Thresholds, diagnose
@@ -485,7 +485,7 @@ def test_a_window_no_constant_fault_fits_revises_and_adds_nothing():
 def test_intermittent_leak_keeps_its_early_isolation():
     """The shipped 0.5 L/min K_extA leak, on 1 s / off 1 s under PRBS at 494 kg, replayed from
     the encoder alone: isolated as K_extA at the alarm; the 4 s after it fit no constant fault
-    (every mean NIS 5-7), so they do not revise it (session 22 revised it to offset- -0.54 %)."""
+    (every mean NIS 5-7), so they do not revise it (to offset- -0.54 %, which fits no better)."""
     from sam import load_plant
     from sam.scenario import load_scenario, run_scenario
     from fdi import replay
@@ -539,7 +539,7 @@ def test_clear_single_fault_is_not_taken_for_a_weak_pair():
     shipped thresholds: the 4 s after the alarm are one steady 3 V extension, which two leaks and
     the unknown load force fit as well as the offset (K_int + K_extA and K_int + K_extB 9 nats
     ahead of offset- alone, 32000 ahead of healthy); the second fault lacks the confirmation
-    evidence, so the diagnosis is offset- with the size of the truth (session 16: "fault, not
+    evidence, so the diagnosis is offset- with the size of the truth (not "fault, not
     isolable")."""
     from sam import load_plant
     from sam.scenario import load_scenario, run_scenario
@@ -588,8 +588,8 @@ def test_a_fault_is_named_only_where_the_calibrated_bank_ranks_it_first():
     rest; the confirmation bank's offset leads "none" by 60 nats. Where the calibrated bank also
     has offset ahead of K_int, offset is named at once; where it has K_int ahead for the first 5
     samples, offset is named at sample 5; where it never does, nothing is named although the
-    alarm stands (confirmation is the best fault's lead over "none", as before): the K_int /
-    offset ridge of session 24, where holding the calibration decided the name."""
+    alarm stands (confirmation is the best fault's lead over "none"): the K_int / offset ridge,
+    where holding the calibration would decide the name."""
     L = 12
     names = tuple(BANK)
     ll = np.zeros((1, len(names), L))
@@ -670,7 +670,7 @@ def test_no_fault_is_named_where_its_parameter_cannot_show():
     not count: 20 nats are reached at 1009, where K_int is named. Hidden over the whole window,
     the alarm is withdrawn; a hidden K_extA (another parameter) changes nothing. Hidden from 1006
     on, with the earliest decision at 1008, K_int is named at 1008 on the data up to 1005 (30 nats):
-    a stretch on the stop adds nothing, for or against (until session 23 it was withdrawn); if the
+    a stretch on the stop adds nothing, for or against (it does not withdraw the alarm); if the
     piston was on the stop from 1003, on the data up to 1002 only (15 nats): withdrawn."""
     L = 12
     names = tuple(BANK)
@@ -716,7 +716,7 @@ def test_unseen_notch_flows_are_not_taken_for_a_fault():
     at the reference's values (the naming bank) K_int leads "none" by more than 100 nats
     (measured 458) and the offset too, the pattern of the last long-cycle false alarms; with
     the load mass and the notch flows as uncertain constant states (the confirmation bank,
-    isolate.CONFIRM_CALIBRATE) no fault fits better than "none", so the alarm would not stand."""
+    BankDesign.confirm_calibrate) no fault fits better than "none", so the alarm would not stand."""
     from sam import P
     from fdi import Thresholds
 
@@ -743,7 +743,7 @@ def test_unseen_notch_flows_are_not_taken_for_a_fault():
 
 
 def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
-    """The episode loop of isolate.isolate, end to end through diagnose(): change tests made far
+    """The episode loop of fdi.diagnosis.judge, end to end through diagnose(): change tests made far
     too sensitive (no drift, h / 20) alarm on a healthy run again and again (at about 1.7, 3.0,
     4.1, 5.1, 6.1 and 7.9 s); the bank withdraws
     every alarm (no fault beats the healthy hypothesis by Thresholds.confirm_nats), the tests
@@ -778,8 +778,8 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     assert faulty.status == "fault" and faulty.isolated == ["K_extA"]
     assert all(s < 6.0 for s in faulty.likelihood["withdrawn_alarms_s"])
     # the alarm that stands may come before the onset (these tests alarm every second), at most
-    # one decision window early, and only the fault's data confirm it (since session 22 the
-    # alarm at 5.17 s, whose window reaches 55 ms into the 1 L/min leak)
+    # one decision window early, and only the fault's data confirm it (here the alarm at 5.17 s,
+    # whose window reaches 55 ms into the 1 L/min leak)
     assert 6.0 - DESIGN.decision_window_s <= faulty.detection_time_s < 6.5
     assert faulty.likelihood["alarm_s"] == faulty.detection_time_s
     assert 6.0 < faulty.likelihood["confirmed_s"] < 7.0
@@ -803,8 +803,8 @@ def test_offset_whose_boom_settles_on_the_stop_is_isolated_within_1s():
     valve retracts and the boom comes down onto the retracted stop about 0.5 s after the onset, and
     the offset cannot show there. The bank had it thousands of nats ahead of every other fault and
     the size right before the landing; judged as the tune judges (decisions up to onset + 1 s), both
-    are isolated as offset+ within 1 s (session 22: withdrawn, since every sample from the bank's
-    earliest decision on was on the stop)."""
+    are isolated as offset+ within 1 s, although every sample from the bank's earliest decision
+    on is on the stop."""
     from fdi import tune
     from fdi import Thresholds
 

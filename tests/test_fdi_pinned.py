@@ -33,13 +33,10 @@ def _end_stop_run():
 
 def test_end_stop_creep_is_held_not_alarmed():
     """On the end stop (B at supply, A at tank) a leak from A to tank carries no flow, so K_extA
-    is unobservable, and its non-negative estimate is free to creep (measured until session 20:
-    0.23 L/min after 6.6 s there, 0.38 with the session-10 filter; since session 21, whose model
-    no longer chatters against the rails, 0.01 L/min). The pinned and held masks name exactly the
-    parameters the pinned pressures hide, and the run is healthy. (With the session-10
-    thresholds the same data alarmed K_extA unheld, as the shipped 40 s healthy cycle did; with
-    the session-11 thresholds this short creep stays below h even unheld, so the case where the
-    hold still decides is the 60 s stall: test_the_long_stall_still_needs_the_hold.)"""
+    is unobservable, and its non-negative estimate is free to creep. The pinned and held masks
+    name exactly the parameters the pinned pressures hide, and the run is healthy. (This short
+    creep stays below h even unheld; the case where the hold decides is the 60 s stall:
+    test_the_long_stall_still_needs_the_hold.)"""
     out = _end_stop_run()
     th = Thresholds.shipped()
     pin = pinned(out, th)[0]
@@ -47,7 +44,7 @@ def test_end_stop_creep_is_held_not_alarmed():
     hidden = held(out, th)[0][:, int(2 / DT):].all(axis=1)
     assert dict(zip(PARAMS, hidden)) == {"K_int": False, "K_extA": True, "K_extB": False, "offset": True}
     assert diagnose(out, th, 0).status == "healthy"
-    # the bank names no fault whose test is held on the stop (fdi.isolate.decide's hidden);
+    # the bank names no fault whose test is held on the stop (fdi.isolation.decide's hidden);
     # on the way there (x > 1 mm) nothing is hidden from it
     on_stop = held_on_stop(out, th)[0]
     assert np.array_equal(on_stop[:, int(2 / DT):], held(out, th)[0][:, int(2 / DT):])
@@ -79,13 +76,10 @@ def test_the_long_stall_still_needs_the_hold():
     """The shipped healthy 60 s cycle at 800 kg stalls against the load with pinned pressures
     (46.7 s of its 60 s): with the shipped thresholds it is healthy; with nothing ever pinned
     an offset test alarms (measured 19-24 s), the estimate that creeps where the pinned pressures
-    hide it, with or without the CUSUM's memory. (Since session 15 the confirmation bank, whose
-    notch flows may move, withdraws those alarms too.) K_extA crept to 0.43 L/min there and
-    alarmed at 39-40 s until session 21: its creep came from the model's forward-Euler chatter of
-    the pinned chamber pressures (sam.dynamics.euler_step), and it is gone with it: after the
-    0.5 s warm-up its estimate stays below the 0.25 L/min target size (session 21: at most 0.15
-    L/min; session 22, with volume conserved at the stops, 0.23 L/min at 54 s; its more sensitive
-    K_extA test also triggers at 17 s when nothing is held, withdrawn by the bank)."""
+    hide it, with or without the CUSUM's memory (the confirmation bank, whose notch flows may
+    move, withdraws those alarms too). After the 0.5 s warm-up the K_extA estimate stays below
+    the 0.25 L/min target size (its test triggers at 17 s when nothing is held, withdrawn by the
+    bank)."""
     from sam.scenario import load_scenario, run_scenario
     from fdi import replay
 
@@ -147,10 +141,8 @@ def test_pinned_uses_the_measured_supply_when_there_is_one():
 def test_reference_baseline_skips_what_the_pinned_reference_hides(monkeypatch):
     """`--baseline REF` with a reference that ends on the end stop (A at tank from 1.3 s on):
     K_extA is unobservable there, so the baseline takes K_extA from the samples that show it,
-    not from the second half. Until session 21 the estimate crept there by itself (0.2 L/min,
-    the model's forward-Euler chatter of the pinned pressures); now it stays put, so the creep
-    is put in: the filter's K_extA estimate is raised by 0.5 L/min wherever the pinned
-    pressures hide it."""
+    not from the second half. The estimate stays put there by itself, so a creep is put in: the
+    filter's K_extA estimate is raised by 0.5 L/min wherever the pinned pressures hide it."""
     from sam import Recording
     from fdi import offline as replay_module
     from fdi.faults import PARAMS

@@ -1,5 +1,5 @@
-"""The position sensor a recording was read with, and the thresholds derived for it (session 17:
-the encoder's thresholds give 3.5 % false alarms per 20 s run on a linear x sensor)."""
+"""The position sensor a recording was read with, and the thresholds derived for it (the
+encoder's thresholds do not hold their false-alarm level on a linear x sensor)."""
 
 from __future__ import annotations
 

@@ -59,7 +59,7 @@ def test_known_leak_detected_isolated_and_sized(leak_csv, tmp_path, capsys):
 
 def test_a_leak_found_in_the_last_second_of_a_recording(tmp_path, capsys):
     """An alarm less than the bank's window before the record ends leaves no sample for the
-    several-faults stage: the single decision stands (this raised a ValueError until session 19)."""
+    several-faults stage: the single decision stands (and nothing raises)."""
     path = tmp_path / "late.csv"
     write_recording(path, _recording({"K_extA": lambda t: profile("step", lpm(1.0), t, t0=3.7)}, T=4001))
     out = tmp_path / "out"
@@ -336,7 +336,7 @@ def test_thresholds_file_round_trip_and_rule(tmp_path):
     from fdi.thresholds import to_toml
     th = Thresholds.shipped()
     assert "GSA" in th.derived.source
-    # the five CUSUMs and, since session 25, the notch-flow trigger
+    # the five CUSUMs and the notch-flow trigger
     assert set(th.test.h) == {"K_int", "K_extA", "K_extB", "offset+", "offset-", "notch_flow"}
     for p_, s in th.test.sigma.items():
         assert len(s) == len(REGIMES) and all(v > 0 for v in s)
@@ -374,9 +374,9 @@ def test_threshold_rule_is_the_level_quantile_of_the_healthy_maxima():
 @pytest.mark.slow
 def test_held_out_healthy_false_alarms_and_large_leak_detection():
     """Reduced-size statistics on runs NOT used to set the thresholds: 40 healthy runs
-    under unknown loads 0-800 kg and model uncertainty. Measured false-alarm rate at
-    full size (230 runs) is 0.4 % per 4 s run (docs/fdi-history.md, session 9; target 1 %); this checks
-    that it stays under 10 % here (binomial slack at n = 40). 1 L/min external leaks A are found."""
+    under unknown loads 0-800 kg and model uncertainty (the full-size tune's false-alarm rate:
+    docs/fdi.md; target 1 %); this checks that it stays under 10 % here (binomial slack at
+    n = 40). 1 L/min external leaks A are found."""
     plant = load_plant()
     th = Thresholds.shipped()
     healthy = run_filter(make_batch(plant, 40, 777).inp)
@@ -422,7 +422,7 @@ def test_encoder_quantiser_convention_does_not_matter_for_a_large_leak(conventio
     does not know. Either way a 1 L/min K_extA step at 2 s (nominal plant, sine 3 V 0.25 Hz)
     is detected within 1 s and isolated. (Small leaks are not convention-proof: a 0.25 L/min
     K_int on this input is isolated in 8/8 noise seeds with floor+0.5 and 2/8 with round,
-    because the quantisation error pattern is the same in every seed; docs/fdi-history.md.)"""
+    because the quantisation error pattern is the same in every seed.)"""
     from sam.measurement import ENCODER_RESOLUTION_RAD as q
     p = load_plant().vector()
     t = np.arange(5001) * DT
@@ -582,10 +582,9 @@ def test_vote_rules_follow_the_sensitivity_studies():
 @pytest.mark.parametrize("drop", ["theta", "x"])
 def test_a_quarter_litre_leak_out_of_a_is_named_within_a_second(drop):
     """The shipped 0.25 L/min K_extA step at 2 s (sine, 494 kg, default noise): isolated within
-    1 s of the onset from x and from the encoder alone, its size band holding the truth. Until
-    session 15 its change residual was counted in the filter's std, 4-8 times the healthy
-    spread, and the alarm came 2.2 s after the onset (docs/fdi.md, "The change residual's
-    spread")."""
+    1 s of the onset from x and from the encoder alone, its size band holding the truth (the
+    external leaks' change residual is not divided by the filter's std, 4-8 times its healthy
+    spread: docs/fdi-design.md, "The change test")."""
     from sam.scenario import load_scenario, run_scenario
     from fdi import replay
 

@@ -417,14 +417,11 @@ def test_on_an_end_stop_only_the_load_learns_from_the_position(plant_vector):
 
 def test_the_position_on_an_end_stop_does_not_push_the_leaks(plant_vector):
     """Eight overloaded machines (800 kg, nuisance parameters drawn as in the tune) held on the
-    retracted stop by the load while the valve cycles +-2.5 V, from a linear sensor. Until session
-    22, with every state learning from the position there, the one-sided position innovation of
-    the sigma points the stop cut short drove the K_extA estimate to 0.14-0.19 L/min (a smaller p_A
-    lifts less), and with only the load learning from it (``stop_learners``, session 20) to
-    0.08-0.15 L/min. Most of that push was the model's, not the stop's: a sigma point that reached
-    the stop within a step compressed chamber A by the whole step's displacement
-    (sam.dynamics.stop_travel_velocity). Since session 22 both stay below 0.16 L/min (0.11-0.15;
-    the rest is pressure), the restricted gain no higher on average."""
+    retracted stop by the load while the valve cycles +-2.5 V, from a linear sensor. With every
+    state learning from the position there, or only the load (StopRules.learners), the one-sided
+    position innovation of the sigma points the stop cuts short could push the K_extA estimate;
+    with the model's stop travel (sam.dynamics.stop_travel_velocity) both stay below 0.16 L/min
+    (the rest is pressure), the restricted gain no higher on average."""
     from fdi.montecarlo import draw_truth
     B, T = 8, 10001
     true = draw_truth(load_plant(), B, np.random.default_rng(7))
