@@ -37,7 +37,16 @@ _POSITIVE = {
 #: Parameters that must be >= 0.
 _NON_NEGATIVE = {
     "K_leak_PA", "K_leak_AT", "K_leak_PB", "K_leak_BT", "b", "r_B", "m_L", "m_R",
-    "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p", "alpha",
+    "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p",
+}
+#: Angles [rad] read as radians within one turn either way: a larger value was meant in degrees.
+_ANGLES = {"theta_level", "cog_angle"}
+#: Settings that plant files no longer take -> the one line that says what to give instead.
+_RETIRED = {
+    ("boom", "alpha"): lambda v: (
+        f"no longer a setting: give theta_level, the joint angle at which the boom is level "
+        f"(= pi/2 - alpha = {math.pi / 2 - v:.10g} rad for the old convention phi = theta + alpha - pi/2), "
+        f"and cog_angle (-pi/2 puts the centre of gravity below the joint, as before); see docs/model.md"),
 }
 
 
@@ -95,6 +104,9 @@ def plant_from_table(table: dict[str, Any], source: str | Path = "<plant>") -> P
         values = dict(table.get(group, {}))
         known = {f.name for f in dataclasses.fields(cls)}
         for key in values:
+            if (group, key) in _RETIRED:
+                value = values[key] if isinstance(values[key], (int, float)) else math.nan
+                raise UserError(f"{where(source, f'{group}.{key}')}: {_RETIRED[group, key](value)}")
             if key not in known:
                 raise UserError(f"{where(source, f'{group}.{key}')}: unknown key{did_you_mean(key, known)}")
         for key, value in values.items():
@@ -120,6 +132,9 @@ def _check_value(source, group: str, key: str, value: Any) -> float:
         raise UserError(f"{where(source, field)}: must be > 0, got {value}")
     if key in _NON_NEGATIVE and value < 0:
         raise UserError(f"{where(source, field)}: must be >= 0, got {value}")
+    if key in _ANGLES and not abs(value) <= 2 * math.pi:
+        raise UserError(f"{where(source, field)}: an angle in radians within [-2 pi, 2 pi], got {value} "
+                        f"(degrees? {value:g} deg = {math.radians(value):.6g} rad)")
     return value
 
 
