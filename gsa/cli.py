@@ -9,6 +9,7 @@ import time
 import warnings
 from pathlib import Path
 
+from gsa import reconstruct_cli
 from sam.errors import UserError
 
 
@@ -38,6 +39,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--resume", action="store_true", help="continue a killed run in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_command)
+    reconstruct_cli.add_command(gsa_sub)
 
 
 def run_command(args: argparse.Namespace) -> int:

@@ -67,13 +67,16 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise UserError(f"{path}: cannot read TOML: {exc}") from None
 
 
-def load_plant(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Plant:
+def load_plant(path: str | Path | None = None, overrides: dict[str, Any] | None = None,
+               overrides_source: str | Path | None = None) -> Plant:
     """Load a plant file over the shipped defaults, then validate it.
 
     Args:
         path: a user plant TOML; None for the paper's SAM.
         overrides: further ``{group: {key: value}}`` on top (e.g. a scenario's
             ``[plant_overrides]``), validated the same way.
+        overrides_source: where the overrides come from, for error messages (default: the
+            plant file's name), e.g. ``"study.toml: 'candidates.B.plant'"``.
     """
     table = read_toml(default_plant_path())
     source = default_plant_path()
@@ -81,7 +84,11 @@ def load_plant(path: str | Path | None = None, overrides: dict[str, Any] | None 
         source = Path(path)
         _merge(table, read_toml(source), source)
     if overrides:
-        _merge(table, overrides, source)
+        own = overrides_source or source
+        _merge(table, overrides, own)
+        for group, values in overrides.items():
+            if group != "name":
+                _checked_group(group, values, own)
     return plant_from_table(table, source)
 
 
@@ -101,16 +108,7 @@ def plant_from_table(table: dict[str, Any], source: str | Path = "<plant>") -> P
     """Build and validate a :class:`Plant` from a complete ``{group: {key: value}}`` table."""
     groups = {}
     for group, cls in _GROUPS.items():
-        values = dict(table.get(group, {}))
-        known = {f.name for f in dataclasses.fields(cls)}
-        for key in values:
-            if (group, key) in _RETIRED:
-                value = values[key] if isinstance(values[key], (int, float)) else math.nan
-                raise UserError(f"{where(source, f'{group}.{key}')}: {_RETIRED[group, key](value)}")
-            if key not in known:
-                raise UserError(f"{where(source, f'{group}.{key}')}: unknown key{did_you_mean(key, known)}")
-        for key, value in values.items():
-            values[key] = _check_value(source, group, key, value)
+        values = _checked_group(group, table.get(group, {}), source)
         missing = [f.name for f in dataclasses.fields(cls)
                    if f.name not in values and f.default is dataclasses.MISSING]
         if missing:
@@ -119,6 +117,18 @@ def plant_from_table(table: dict[str, Any], source: str | Path = "<plant>") -> P
     plant = Plant(name=str(table.get("name", "plant")), **groups)
     _check_relations(plant, source)
     return plant
+
+
+def _checked_group(group: str, values: dict[str, Any], source) -> dict[str, float]:
+    """The keys of one table, each known and its value valid; one-line UserError otherwise."""
+    known = {f.name for f in dataclasses.fields(_GROUPS[group])}
+    for key, value in values.items():
+        if (group, key) in _RETIRED:
+            raise UserError(f"{where(source, f'{group}.{key}')}: "
+                            f"{_RETIRED[group, key](value if isinstance(value, (int, float)) else math.nan)}")
+        if key not in known:
+            raise UserError(f"{where(source, f'{group}.{key}')}: unknown key{did_you_mean(key, known)}")
+    return {key: _check_value(source, group, key, value) for key, value in values.items()}
 
 
 def _check_value(source, group: str, key: str, value: Any) -> float:
