@@ -6,8 +6,8 @@ from a model's Sobol' indices (or, for a natural frequency, from the model itsel
 bootstrap replicate at once. The kinds:
 
 * :class:`Ranking` (the paper's Tables 2 and 6): the share of the published pairwise orders a
-  model does *not* reproduce, ``1 - concordance``. A pair of two negligible indices (both below
-  ``negligible``) counts one half: their order is noise, in the paper as in the model.
+  model reverses, ``1 - concordance``. A pair of two negligible indices (both below
+  ``negligible``) is not reversed: their order is noise, in the paper as in the model.
 * :class:`Values` (Tables 4, 7 and 8): the root-mean-square distance to the published indices
   over all instants and factors; per instant in :meth:`Evidence.details`.
 * :class:`Interaction` (Table 3): the root-mean-square distance of ``1 - sum S1`` per output.
@@ -91,12 +91,12 @@ class Evidence:
 
 def concordance(values: np.ndarray, order: Sequence[int], negligible: float) -> np.ndarray:
     """(R,): the share of the ordered pairs (order[a] above order[b], a < b) that ``values``
-    (R, G) reproduce; a pair of two values below ``negligible`` counts one half."""
+    (R, G) do not reverse; a pair of two values below ``negligible`` is never reversed."""
     score = np.zeros(values.shape[0])
     pairs = list(combinations(order, 2))
     for hi, lo in pairs:
         both_small = (values[:, hi] < negligible) & (values[:, lo] < negligible)
-        score += np.where(both_small, 0.5, (values[:, hi] > values[:, lo]).astype(float))
+        score += both_small | (values[:, hi] > values[:, lo])
     return score / len(pairs)
 
 

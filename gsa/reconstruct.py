@@ -36,7 +36,7 @@ from gsa.bootstrap import resample_counts
 from gsa.reconstruct_spec import Candidate, InitialCondition, ReconstructionSpec
 from sam.capability import lift_check, max_liftable_mass, natural_frequency, natural_frequency_over_stroke
 
-FORMAT = 1  #: version of the saved candidate files
+FORMAT = 2  #: version of the saved candidate files and of their scoring: a new one recomputes them
 CONFIDENCE = 0.95
 #: Losses are ranked to this resolution (index units, or a fraction): the paper prints indices to
 #: three decimals, and a closer difference is not one (e.g. the gravity stiffness's 1e-4 on Fig. 4).

@@ -29,7 +29,7 @@ from gsa.reconstruct import CONFIDENCE, ReconstructionResult, _interval, main_ef
 REPORT_FILES = ("reconstruct.md", "reconstruct.json", "reconstruct.png", "reconstruct_factors.png")
 
 _LOSS_MEANING = {
-    "rankings": "share of the published pairwise orders not reproduced (0: the same ranking)",
+    "rankings": "share of the published pairwise orders reversed (0: the same ranking; two negligible indices are never reversed)",
     "values": "root-mean-square distance to the published indices",
     "frequency": "|f_max - f_paper| / f_paper",
     "statements": "shortfall of the statement's smallest margin, in index units (0: it holds)",

@@ -49,7 +49,8 @@ EVIDENCE = (
 
 def test_concordance_counts_published_pairs():
     values = np.array([[0.5, 0.3, 0.1], [0.1, 0.3, 0.5], [0.5, 0.005, 0.001]])
-    np.testing.assert_allclose(concordance(values, [0, 1, 2], 0.01), [1.0, 0.0, 5 / 6])
+    np.testing.assert_allclose(concordance(values, [0, 1, 2], 0.01), [1.0, 0.0, 1.0])
+    np.testing.assert_allclose(concordance(values[[2]][:, [1, 0, 2]], [0, 1, 2], 0.01), [2 / 3])
 
 
 def test_each_loss_is_its_hand_computed_distance():
