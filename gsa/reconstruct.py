@@ -133,7 +133,8 @@ def indices_with_replicates(design, Y: np.ndarray, counts: np.ndarray,
     return out[0], out[1], [outputs[j] for j in np.flatnonzero(flat)]
 
 
-def _interval(values: np.ndarray) -> tuple[float, float]:
+def percentile_interval(values: np.ndarray) -> tuple[float, float]:
+    """(lo, hi): the CONFIDENCE percentile interval of bootstrap replicates (n,)."""
     a = (1 - CONFIDENCE) / 2
     lo, hi = np.quantile(values, [a, 1 - a])
     return float(lo), float(hi)
@@ -193,7 +194,7 @@ def score_candidate(spec: ReconstructionSpec, cand: Candidate, counts: np.ndarra
     details = {}
     for e in spec.evidence:
         p, r = e.details(pt), e.details(reps)
-        details[e.id] = {k: [float(p[k][0]), *_interval(r[k])] for k in p}
+        details[e.id] = {k: [float(p[k][0]), *percentile_interval(r[k])] for k in p}
     return CandidateScore(cand.name, losses, point, details, summary, freq, _lift(spec, cand), constant,
                           time.perf_counter() - t0)
 
@@ -204,7 +205,7 @@ def _summarise(point: StudyIndices, reps: StudyIndices) -> dict:
         by_signal: dict = {}
         for j, (signal, t) in enumerate(point.outputs):
             by_signal.setdefault(signal, {})[instant_label(t)] = {
-                f: [float(getattr(point, index)[0, i, j]), *_interval(getattr(reps, index)[:, i, j])]
+                f: [float(getattr(point, index)[0, i, j]), *percentile_interval(getattr(reps, index)[:, i, j])]
                 for i, f in enumerate(point.factors)}
         out[index] = by_signal
     return out
@@ -348,11 +349,11 @@ def decide(scores: list[CandidateScore], groups: list[str], item_ids: list[str],
     lowest = mean_reps == mean_reps.min(axis=0)
     return Verdict(
         names=names, item_ids=tuple(item_ids), ranks=ranks, best=best, mean_rank=mean_rank,
-        mean_rank_ci=np.array([_interval(m) for m in mean_reps]), mean_rank_reps=mean_reps, group_rank=group_rank,
+        mean_rank_ci=np.array([percentile_interval(m) for m in mean_reps]), mean_rank_reps=mean_reps, group_rank=group_rank,
         p_best=(lowest / lowest.sum(axis=0)).mean(axis=1), winner=names[w], runner_up=names[r],
-        margin=float(mean_rank[r] - mean_rank[w]), margin_ci=_interval(mean_reps[r] - mean_reps[w]),
+        margin=float(mean_rank[r] - mean_rank[w]), margin_ci=percentile_interval(mean_reps[r] - mean_reps[w]),
         group_winner=names[int(np.lexsort((mean_rank, group_rank))[0])], reference=names[0],
-        reference_margin=float(mean_rank[0] - mean_rank[w]), reference_margin_ci=_interval(mean_reps[0] - mean_reps[w]),
+        reference_margin=float(mean_rank[0] - mean_rank[w]), reference_margin_ci=percentile_interval(mean_reps[0] - mean_reps[w]),
     )
 
 
@@ -449,8 +450,8 @@ def main_effects(result: "ReconstructionResult", verdict: str = "headline") -> d
         point = {o: float(v.mean_rank[ks].mean()) for o, ks in options.items()}
         best = min(point, key=point.get)
         out[f] = {o: {"losses": {i: float(np.mean([result.scores[k].point[j] for k in ks])) for j, i in enumerate(ids)},
-                      "mean_rank": [point[o], *_interval(reps[o])],
-                      "behind_best": [point[o] - point[best], *_interval(reps[o] - reps[best])], "n": len(ks)}
+                      "mean_rank": [point[o], *percentile_interval(reps[o])],
+                      "behind_best": [point[o] - point[best], *percentile_interval(reps[o] - reps[best])], "n": len(ks)}
                   for o, ks in options.items()}
     return out
 

@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from gsa.evidence import Frequency, Interaction, Ranking, Statement, Values, instant_label  # noqa: E402
-from gsa.reconstruct import CONFIDENCE, ReconstructionResult, _interval, main_effects  # noqa: E402
+from gsa.reconstruct import CONFIDENCE, ReconstructionResult, percentile_interval, main_effects  # noqa: E402
 
 REPORT_FILES = ("reconstruct.md", "reconstruct.json", "reconstruct.png", "reconstruct_factors.png")
 
@@ -56,7 +56,7 @@ def _item_verdict(result: ReconstructionResult):
 
 def _loss_cells(result: ReconstructionResult, k: int) -> list[tuple[float, float, float]]:
     s = result.scores[k]
-    return [(float(s.point[i]), *_interval(s.losses[:, i])) for i in range(len(s.point))]
+    return [(float(s.point[i]), *percentile_interval(s.losses[:, i])) for i in range(len(s.point))]
 
 
 def _ids(result, headline: bool | None = None) -> str:

@@ -9,7 +9,6 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import sam
-from sam import P
 from sam.capability import lift_check, load_force, max_liftable_mass, natural_frequency, natural_frequency_over_stroke
 from sam.geometry import torque_arm
 
