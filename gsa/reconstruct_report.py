@@ -95,7 +95,8 @@ def summary_markdown(result: ReconstructionResult) -> str:
               "the items with equal weights; P(best) is the share of bootstrap replicates in which the "
               "candidate has the best mean rank. The intervals cover the Monte Carlo error of our "
               "indices only: the paper's own numbers (N = 10000, the Saltelli 2002 estimator) carry an "
-              "error we do not know.", "",
+              "error we do not know. They are percentile intervals of replicates; ranks and distances "
+              "are not smooth in the indices, so an estimate can sit at the edge of its interval.", "",
               "| item | kind | in the issue | evidence | loss |", "|---|---|---|---|---|"]
     for e in ev:
         lines.append(f"| {e.id} | {e.group} | {'yes' if e.headline else 'no'} | {e.text} | "
