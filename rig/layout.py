@@ -8,7 +8,6 @@ than the piston's position and velocity, and the oil each chamber holds rather t
 
 from __future__ import annotations
 
-import math
 from enum import IntEnum
 
 
