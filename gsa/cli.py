@@ -10,6 +10,7 @@ import time
 import warnings
 from pathlib import Path
 
+from gsa import reconstruct_cli
 from sam.errors import UserError, output_folder
 from sam.options import integer
 
@@ -46,6 +47,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="replace report files (summary.md, indices.csv, ...) in a folder that holds no run")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_command)
+    reconstruct_cli.add_command(gsa_sub)
 
 
 def run_command(args: argparse.Namespace) -> int:

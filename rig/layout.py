@@ -8,7 +8,6 @@ than the piston's position and velocity, and the oil each chamber holds rather t
 
 from __future__ import annotations
 
-import math
 from enum import IntEnum
 
 
@@ -35,10 +34,6 @@ G = 9.81  #: m/s^2
 P_ATM = 101_325.0  #: Pa, atmospheric pressure: gauge pressures are relative to it
 P_VAPOUR = 2_000.0 - P_ATM  #: Pa (gauge), oil's vapour pressure: a chamber below it holds a void
 KAPPA = 1.4  #: 1, polytropic exponent of free air in fast transients
-
-#: C1's defaults where a plant file predates them: the boom level at pi/2 - alpha, its centre of
-#: gravity r_B below the joint.
-COG_ANGLE_DEFAULT = -math.pi / 2
 
 
 class C(IntEnum):

@@ -17,18 +17,13 @@ import numpy as np
 from sam.errors import UserError, where
 from sam.params import Effects as SamEffects, Plant
 
-from .layout import COG_ANGLE_DEFAULT, N_CONSTANTS, C
+from .layout import N_CONSTANTS, C
 from .mechanics import piston_position
 from .settings import RigSettings
 
 def boom_conventions(plant: Plant) -> tuple[float, float]:
-    """(theta_level, cog_angle) [rad] of contract C1: from the plant file once it has them,
-    today's reconstruction (pi/2 - alpha, -pi/2) before."""
-    b = plant.boom
-    theta_level = getattr(b, "theta_level", None)
-    if theta_level is None:
-        theta_level = math.pi / 2 - b.alpha
-    return float(theta_level), float(getattr(b, "cog_angle", COG_ANGLE_DEFAULT))
+    """(theta_level, cog_angle) [rad] of the plant file's boom (docs/model.md, "Boom conventions")."""
+    return float(plant.boom.theta_level), float(plant.boom.cog_angle)
 
 
 def joint_geometry(plant: Plant, settings: RigSettings, rng: np.random.Generator) -> dict[str, float]:

@@ -25,7 +25,7 @@ from . import views
 from .constants import P_CAVITATION
 from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, stribeck
 from .geometry import (
-    cos_joint_angle, load_torque_cs, stroke_end, torque_arm_cs, total_inertia,
+    cos_joint_angle, load_torque_cs, quarter_turn_cos_sin, stroke_end, torque_arm_cs, total_inertia,
 )
 from .hydraulics import fault_leakages, flow_coefficient, inverse_capacitance, leak_conductance, valve_flows
 from .params import P
@@ -64,11 +64,13 @@ class D(IntEnum):
     K_BT = 3
     A_A = 4  #: m^2
     A_B = 5  #: m^2
-    cos_alpha = 6
-    sin_alpha = 7
+    cos_level = 6  #: cos(theta_level)
+    sin_level = 7
     x_end = 8  #: m, extension end stop
     inv_J_tot = 9  #: 1/(kg m^2), inverse of J_tot, Eq. (16)
     sigma_1_r = 10  #: N s, sigma_1 times the torque arm r (sigma_1 = sigma_1_r / r)
+    cos_cog = 11  #: cos(cog_angle)
+    sin_cog = 12
 
 
 N_DERIVED = len(D)
@@ -77,11 +79,11 @@ N_DERIVED = len(D)
 #: constants are derived again at every step.
 DERIVE_INPUTS = frozenset({
     "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT", "dp_N_PA", "dp_N_AT", "dp_N_PB", "dp_N_BT",
-    "D_piston", "D_rod", "x_max", "alpha", "theta_max", "L_1", "L_2", "L_3",
+    "D_piston", "D_rod", "x_max", "theta_level", "cog_angle", "theta_max", "L_1", "L_2", "L_3",
     "m_B", "m_L", "m_R", "L_B", "L", "sigma_0",
 })
 #: Those of them that only :func:`derive_geometry` reads (its trigonometry).
-GEOMETRY_INPUTS = frozenset({"x_max", "alpha", "theta_max", "L_1", "L_2", "L_3"})
+GEOMETRY_INPUTS = frozenset({"x_max", "theta_level", "cog_angle", "theta_max", "L_1", "L_2", "L_3"})
 #: Their columns of a parameter vector, in the order of P: the geometry's, and the others'.
 GEOMETRY_COLS = np.array(sorted(int(P[name]) for name in GEOMETRY_INPUTS), dtype=np.int64)
 MACHINE_COLS = np.array(sorted(int(P[name]) for name in DERIVE_INPUTS - GEOMETRY_INPUTS), dtype=np.int64)
@@ -114,10 +116,10 @@ def derive(p, d):
 
 @jit_inline
 def derive_geometry(p, d):
-    """The constants of :func:`derive` that depend on GEOMETRY_INPUTS only: the boom's
-    mounting angle (cos, sin) and the extension end stop."""
-    d[D.cos_alpha] = np.cos(p[P.alpha])
-    d[D.sin_alpha] = np.sin(p[P.alpha])
+    """The constants of :func:`derive` that depend on GEOMETRY_INPUTS only: cos and sin of the
+    boom's conventions (theta_level, cog_angle) and the extension end stop."""
+    d[D.cos_level], d[D.sin_level] = quarter_turn_cos_sin(p[P.theta_level])
+    d[D.cos_cog], d[D.sin_cog] = quarter_turn_cos_sin(p[P.cog_angle])
     d[D.x_end] = stroke_end(p[P.x_max], p[P.theta_max], p[P.L_1], p[P.L_2], p[P.L_3])
 
 
@@ -193,7 +195,8 @@ def rates(s, u, p, d, ds):
     inv_r = 1.0 / r  # divisions are the step's dearest operations: one here serves three
     inv_m_red = r * r * d[D.inv_J_tot]  # 1 / m_reduced, Eq. (20)
     tau = load_torque_cs(
-        cos_theta, sin_theta, d[D.cos_alpha], d[D.sin_alpha], p[P.m_B], p[P.r_B], p[P.m_L], p[P.m_R], p[P.L]
+        cos_theta, sin_theta, d[D.cos_level], d[D.sin_level], d[D.cos_cog], d[D.sin_cog],
+        p[P.m_B], p[P.r_B], p[P.m_L], p[P.m_R], p[P.L],
     )
     F_ext = tau * inv_r + p[P.F_d]
 

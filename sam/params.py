@@ -83,8 +83,9 @@ class Boom:
     L_3: float  #: m, cylinder joint distance at full retraction
     L: float  #: m, load distance from the boom joint
     L_B: float  #: m, boom length
-    r_B: float  #: m, boom height: centre of gravity this far below the joint
-    alpha: float  #: rad, alpha_1 + alpha_2: the boom is horizontal at theta = pi/2 - alpha
+    r_B: float  #: m, boom height: distance of the boom's centre of gravity from the joint
+    theta_level: float  #: rad, joint angle theta at which the boom is level: phi = theta - theta_level
+    cog_angle: float  #: rad, direction of the centre of gravity in the boom's frame, from the m_L arm, up positive
     m_B: float  #: kg, boom mass
     m_L: float  #: kg, left load mass (raised by extension)
     m_R: float  #: kg, right load mass

@@ -37,7 +37,16 @@ _POSITIVE = {
 #: Parameters that must be >= 0.
 _NON_NEGATIVE = {
     "K_leak_PA", "K_leak_AT", "K_leak_PB", "K_leak_BT", "b", "r_B", "m_L", "m_R",
-    "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p", "alpha",
+    "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p",
+}
+#: Angles [rad] read as radians within one turn either way: a larger value was meant in degrees.
+_ANGLES = {"theta_level", "cog_angle"}
+#: Settings that plant files no longer take -> the one line that says what to give instead.
+_RETIRED = {
+    ("boom", "alpha"): lambda v: (
+        f"no longer a setting: give theta_level, the joint angle at which the boom is level "
+        f"(= pi/2 - alpha = {math.pi / 2 - v:.10g} rad for the old convention phi = theta + alpha - pi/2), "
+        f"and cog_angle (-pi/2 puts the centre of gravity below the joint, as before); see docs/model.md"),
 }
 
 
@@ -78,13 +87,16 @@ def refuse_other_kind(table: dict[str, Any], source: str | Path, expected: str, 
             raise UserError(f"{source}: this is {kind} (it has {', '.join(found)}), not {expected}; {hint}")
 
 
-def load_plant(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Plant:
+def load_plant(path: str | Path | None = None, overrides: dict[str, Any] | None = None,
+               overrides_source: str | Path | None = None) -> Plant:
     """Load a plant file over the shipped defaults, then validate it.
 
     Args:
         path: a user plant TOML; None for the paper's SAM.
         overrides: further ``{group: {key: value}}`` on top (e.g. a scenario's
             ``[plant_overrides]``), validated the same way.
+        overrides_source: where the overrides come from, for error messages (default: the
+            plant file's name), e.g. ``"study.toml: 'candidates.B.plant'"``.
     """
     table = read_toml(default_plant_path())
     source = default_plant_path()
@@ -94,7 +106,11 @@ def load_plant(path: str | Path | None = None, overrides: dict[str, Any] | None 
         refuse_other_kind(user, source, "a plant file", "give a plant file such as scenarios/plants/sam.toml")
         _merge(table, user, source)
     if overrides:
-        _merge(table, overrides, source)
+        own = overrides_source or source
+        _merge(table, overrides, own)
+        for group, values in overrides.items():
+            if group != "name":
+                _checked_group(group, values, own)
     return plant_from_table(table, source)
 
 
@@ -114,13 +130,7 @@ def plant_from_table(table: dict[str, Any], source: str | Path = "<plant>") -> P
     """Build and validate a :class:`Plant` from a complete ``{group: {key: value}}`` table."""
     groups = {}
     for group, cls in _GROUPS.items():
-        values = dict(table.get(group, {}))
-        known = {f.name for f in dataclasses.fields(cls)}
-        for key in values:
-            if key not in known:
-                raise UserError(f"{where(source, f'{group}.{key}')}: unknown key{did_you_mean(key, known)}")
-        for key, value in values.items():
-            values[key] = _check_value(source, group, key, value)
+        values = _checked_group(group, table.get(group, {}), source)
         missing = [f.name for f in dataclasses.fields(cls)
                    if f.name not in values and f.default is dataclasses.MISSING]
         if missing:
@@ -129,6 +139,18 @@ def plant_from_table(table: dict[str, Any], source: str | Path = "<plant>") -> P
     plant = Plant(name=str(table.get("name", "plant")), **groups)
     _check_relations(plant, source)
     return plant
+
+
+def _checked_group(group: str, values: dict[str, Any], source) -> dict[str, float]:
+    """The keys of one table, each known and its value valid; one-line UserError otherwise."""
+    known = {f.name for f in dataclasses.fields(_GROUPS[group])}
+    for key, value in values.items():
+        if (group, key) in _RETIRED:
+            raise UserError(f"{where(source, f'{group}.{key}')}: "
+                            f"{_RETIRED[group, key](value if isinstance(value, (int, float)) else math.nan)}")
+        if key not in known:
+            raise UserError(f"{where(source, f'{group}.{key}')}: unknown key{did_you_mean(key, known)}")
+    return {key: _check_value(source, group, key, value) for key, value in values.items()}
 
 
 def _check_value(source, group: str, key: str, value: Any) -> float:
@@ -142,6 +164,9 @@ def _check_value(source, group: str, key: str, value: Any) -> float:
         raise UserError(f"{where(source, field)}: must be > 0, got {value}")
     if key in _NON_NEGATIVE and value < 0:
         raise UserError(f"{where(source, field)}: must be >= 0, got {value}")
+    if key in _ANGLES and not abs(value) <= 2 * math.pi:
+        raise UserError(f"{where(source, field)}: an angle in radians within [-2 pi, 2 pi], got {value} "
+                        f"(degrees? {value:g} deg = {math.radians(value):.6g} rad)")
     return value
 
 

@@ -154,7 +154,7 @@ def initial_state(params: np.ndarray, x: float | np.ndarray = 0.0) -> np.ndarray
     p_B = _leak_divider(p, "PB", "BT")
     A_A, A_B = areas(p[:, P.D_piston], p[:, P.D_rod])
     F_ext = external_force(
-        x, p[:, P.L_1], p[:, P.L_2], p[:, P.L_3], p[:, P.alpha], p[:, P.m_B],
+        x, p[:, P.L_1], p[:, P.L_2], p[:, P.L_3], p[:, P.theta_level], p[:, P.cog_angle], p[:, P.m_B],
         p[:, P.r_B], p[:, P.m_L], p[:, P.m_R], p[:, P.L],
     ) + p[:, P.F_d]
     p_A = np.where(x > 0.0, (p_B * A_B + F_ext) / A_A, p_A)

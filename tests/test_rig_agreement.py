@@ -100,21 +100,23 @@ def test_rig_and_sam_agree_over_the_parameter_box(B_eff, Q_N, dp_N, m_L, u):
 
 
 def test_the_boom_follows_contract_c1():
-    """Contract C1: the rig reads theta_level and cog_angle from the plant's boom once it has them,
-    and today's reconstruction (pi/2 - alpha, -pi/2) before; with those, the rig's gravity torque
-    over its lever is sam's load force (Eq. (21)) at every position, written apart."""
+    """The rig reads theta_level and cog_angle from the plant's boom; with those, the rig's gravity
+    torque over its lever is sam's load force (Eq. (21)) at every position, written apart, for the
+    default reconstruction and for another convention."""
     from types import SimpleNamespace
 
     from rig.machine import boom_conventions
     from sam.geometry import external_force
 
     assert boom_conventions(SimpleNamespace(boom=SimpleNamespace(theta_level=0.415, cog_angle=0.3))) == (0.415, 0.3)
-    plant = sam.load_plant()
-    assert boom_conventions(plant) == (np.pi / 2 - plant.boom.alpha, -np.pi / 2)
-    c = rig.build(plant, rig_settings(), np.random.default_rng(0))
-    b = plant.boom
-    for x in np.linspace(0.0, 0.43, 12):
-        theta = np.arccos((b.L_1**2 + b.L_2**2 - (x + b.L_3) ** 2) / (2 * b.L_1 * b.L_2))
-        rig_force = gravity_torque(theta, c, b.m_L) / torque_arm(theta, b.L_1, b.L_2, b.L_3)
-        sam_force = external_force(x, b.L_1, b.L_2, b.L_3, b.alpha, b.m_B, b.r_B, b.m_L, b.m_R, b.L)
-        assert rig_force == pytest.approx(sam_force, rel=1e-9)
+    for plant in (sam.load_plant(), sam.load_plant().replace(theta_level=0.415, cog_angle=0.3)):
+        b = plant.boom
+        assert boom_conventions(plant) == (b.theta_level, b.cog_angle)
+        c = rig.build(plant, rig_settings(), np.random.default_rng(0))
+        for x in np.linspace(0.0, 0.43, 12):
+            theta = np.arccos((b.L_1**2 + b.L_2**2 - (x + b.L_3) ** 2) / (2 * b.L_1 * b.L_2))
+            rig_force = gravity_torque(theta, c, b.m_L) / torque_arm(theta, b.L_1, b.L_2, b.L_3)
+            sam_force = external_force(
+                x, b.L_1, b.L_2, b.L_3, b.theta_level, b.cog_angle, b.m_B, b.r_B, b.m_L, b.m_R, b.L
+            )
+            assert rig_force == pytest.approx(sam_force, rel=1e-9)
