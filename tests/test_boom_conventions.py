@@ -105,7 +105,7 @@ def test_load_force_is_the_virtual_work_of_gravity(theta, theta_level, cog_angle
     x = piston_position(theta, b.L_1, b.L_2, b.L_3)
     F = external_force(x, b.L_1, b.L_2, b.L_3, theta_level, cog_angle, m_B, r_B, m_L, m_R, b.L)
     scale = G * ((m_L + m_R) * b.L + m_B * r_B) / dx  # the force if every torque added up
-    assert F == pytest.approx(dE / dx, abs=1e-8 * scale)
+    assert F == pytest.approx(dE / dx, abs=1e-8 * scale + 1e-9)  # + 1 nN: a subnormal mass makes scale 0
 
 
 def test_a_plant_file_that_gives_alpha_is_told_what_to_give(tmp_path):
