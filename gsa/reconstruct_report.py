@@ -424,7 +424,9 @@ def plot_scores(result: ReconstructionResult, path: Path) -> Path:
         vv = result.verdicts[name]
         m, ci = vv.mean_rank[rows], vv.mean_rank_ci[rows]
         y = np.arange(n) + shift
-        ax2.errorbar(m, y, xerr=[m - ci[:, 0], ci[:, 1] - m], fmt=marker, color=color, ms=4, capsize=2, lw=1,
+        # a percentile interval need not hold the mean of a skewed bootstrap: bars end at the point then
+        err = np.clip([m - ci[:, 0], ci[:, 1] - m], 0.0, None)
+        ax2.errorbar(m, y, xerr=err, fmt=marker, color=color, ms=4, capsize=2, lw=1,
                      label="issue's items" if name == "headline" else "all items")
     ax2.set_xlim(0.5, K + 0.5)
     ax2.grid(axis="x", alpha=0.3)
