@@ -23,7 +23,7 @@ def add_commands(subparsers) -> None:
     sub = p.add_subparsers(dest="fdi_command", metavar="SUBCOMMAND", required=True)
 
     r = sub.add_parser("replay", help="filter a recording and diagnose it")
-    r.add_argument("recording", help="recording file (.csv or .mat, see recording-format.md)")
+    r.add_argument("recording", help="recording file (.csv or .mat; the format: docs/recordings.md)")
     r.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
     r.add_argument("--out", required=True, help="output folder")
     r.add_argument("--thresholds", help="thresholds.toml from `samfdi fdi thresholds` (default: the shipped one of "
@@ -108,10 +108,20 @@ def _plant(args):
 def _load_thresholds(path):
     if not path:
         return None  # the shipped file of the recording's position sensor (replay) or of the encoder
+    if not Path(path).is_file():
+        raise UserError(f"{path}: --thresholds: {'is a folder' if Path(path).is_dir() else 'file does not exist'}; "
+                        "give the thresholds.toml that `samfdi fdi thresholds` wrote")
+    if Path(path).suffix not in (".toml", ".json"):
+        raise UserError(f"{path}: --thresholds: expected a .toml file (the thresholds.toml that "
+                        "`samfdi fdi thresholds` wrote, or a thresholds_used.json)")
     try:
         return Thresholds.load(path)
-    except (OSError, ValueError, TypeError) as exc:
-        raise UserError(f"{path}: not a thresholds file from `samfdi fdi thresholds`: {exc}") from None
+    except UnicodeDecodeError:
+        raise UserError(f"{path}: --thresholds: not a text file; give the thresholds.toml that "
+                        "`samfdi fdi thresholds` wrote") from None
+    except (OSError, ValueError, TypeError, AttributeError) as exc:
+        raise UserError(f"{path}: --thresholds: not a thresholds file from `samfdi fdi thresholds` "
+                        f"({' '.join(str(exc).split())})") from None
 
 
 def _thresholds(args) -> int:
@@ -156,12 +166,7 @@ def _replay(args) -> int:
         print(f"position sensor: {diag.thresholds['position_sensor']} "
               f"({'as given' if args.position_sensor else 'x is not on the encoder grid'}): the shipped "
               f"thresholds for it ({diag.thresholds['source']})")
-    line = f"{diag.status}"
-    if diag.isolated:  # the bank may name another hypothesis than the one that alarmed first
-        line += ": " + ", ".join(f"{h} {diag.size[h]['value']:.3g} {diag.size[h]['unit']}" if h in diag.size else h
-                                 for h in diag.isolated)
-        line += f" (alarm t = {diag.detection_time_s:.3f} s)"
-    print(line)
+    print(diag.headline())
     cal = diag.filter_health.get("calibrated_from_reference")
     if cal:
         print("calibrated from the reference: " + ", ".join(

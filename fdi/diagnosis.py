@@ -51,6 +51,38 @@ class Diagnosis:
         """diagnosis.json's text."""
         return json.dumps(asdict(self), indent=2, default=float)
 
+    def reading(self) -> str:
+        """The status with the faults named, their sizes and the alarm, in one line."""
+        line = self.status
+        if self.isolated:  # the bank may name another hypothesis than the one that alarmed first
+            line += ": " + ", ".join(f"{h} {self.size[h]['value']:.3g} {self.size[h]['unit']}" if h in self.size else h
+                                     for h in self.isolated)
+            if self.detection_time_s is not None:
+                line += f" (alarm t = {self.detection_time_s:.3f} s)"
+        return line
+
+    def caveats(self) -> list:
+        """What keeps the recording from supporting a diagnosis, in words ([] when nothing does):
+        a constant valve input, a model that does not fit the measurements."""
+        h = self.filter_health
+        out = [h["input_not_excited"]] if h.get("input_not_excited") else []
+        if h.get("model_fit_warning"):
+            why = ([f"NIS alarm at t = {self.model_fit_alarm_s:.3f} s"] if self.model_fit_alarm_s is not None else []) \
+                + ([f"{h['covariance_resets'] + h['state_resets']} filter resets"]
+                   if h.get("covariance_resets", 0) + h.get("state_resets", 0) else [])
+            out.append(f"the model does not fit the measurements ({', '.join(why)}): check the plant file "
+                       "(`samfdi mismatch` locates what differs)")
+        return out
+
+    def headline(self) -> str:
+        """What a person reads first: the :meth:`reading`, or, when the recording cannot support a
+        diagnosis, that and why on the first line and the reading, marked as such, on the second."""
+        caveats = self.caveats()
+        if not caveats:
+            return self.reading()
+        return (f"no diagnosis (the recording cannot support one): {'; '.join(caveats)}\n"
+                f"the detector's reading, not a diagnosis: {self.reading()}")
+
 
 @dataclass(frozen=True)
 class Verdict:

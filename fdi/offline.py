@@ -23,7 +23,9 @@ from .config import FilterConfig
 from .diagnosis import Diagnosis, diagnose, shown_statistics
 from .faults import HYPOTHESES, PARAMS
 from .filter import FilterOutput, run_filter
-from .recording import at_thresholds_rate, check_duration, check_observable, detect_position_sensor, filter_input
+from .recording import (
+    at_thresholds_rate, check_duration, check_observable, detect_position_sensor, excitation_caveat, filter_input,
+)
 from .states import STATE_NAMES, leak_lpm
 from .statistics import residuals, statistics
 from .thresholds import Thresholds
@@ -102,14 +104,18 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None, thr
     if k > 1:
         health["decimated_by"] = k
     check_duration(rec, thresholds, own_baseline=baseline is None)
+    # a healthy recording of the machine is held to what replay asks of any recording
+    given = {"--reference": reference, "--baseline": baseline if isinstance(baseline, Recording) else None}
+    given = {role: at_thresholds_rate(r, thresholds)[0] for role, r in given.items() if r is not None}
+    for role, r in given.items():
+        check_duration(r, thresholds, own_baseline=True, role=role)
     check_observable(inp, plant, plant_name, str(rec.source or "the recording"))
     cal = None
-    if reference is not None:
-        cal = learn_reference(at_thresholds_rate(reference, thresholds)[0], plant, cfg,
-                              drop_out_of_range=drop_out_of_range)
+    if "--reference" in given:
+        cal = learn_reference(given["--reference"], plant, cfg, drop_out_of_range=drop_out_of_range)
         health["calibrated_from_reference"] = cal.to_json()
-    if isinstance(baseline, Recording):
-        baseline = reference_baseline(at_thresholds_rate(baseline, thresholds)[0], plant, thresholds, cfg, cal,
+    if "--baseline" in given:
+        baseline = reference_baseline(given["--baseline"], plant, thresholds, cfg, cal,
                                       drop_out_of_range=drop_out_of_range)
     if cal is not None:
         inp, cfg = calibration.apply(inp, cfg, cal)
@@ -117,6 +123,9 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None, thr
     out = replace(out, t=rec.t - rec.t[0])
     diag = diagnose(out, thresholds, 0, statistics(out, thresholds, baseline), baseline, design=design)
     health["position_sensor"] = sensor
+    caveat = excitation_caveat(inp)
+    if caveat:
+        health["input_not_excited"] = caveat
     note = diag.note
     if thresholds.derived.position_sensor != sensor:
         warning = (f"the thresholds were derived for the {thresholds.derived.position_sensor} position sensor, but "

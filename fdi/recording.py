@@ -44,6 +44,9 @@ class InputChecks:
     #: than this (the sensor noise) under the recording's input, or the plant is refused
     observable_Pa: float = 20e3
     observability_s: float = 2.0  #: s: of the recording's input simulated for that check
+    #: V: a valve input whose range is below this is constant: one operating point, which cannot
+    #: tell the faults apart (K_int and the offset act alike there) nor show that the model fits
+    min_input_range_V: float = 0.05
 
 
 CHECKS = InputChecks()
@@ -230,12 +233,31 @@ def at_thresholds_rate(rec: Recording, th: Thresholds, checks: InputChecks = CHE
                     f"for {1 / dt_th:.4g} Hz ({source}); {todo}")
 
 
-def check_duration(rec: Recording, th: Thresholds, own_baseline: bool) -> None:
-    """Refuse a recording too short to test: "healthy" would only mean "not looked at"."""
+def excitation_caveat(inp: FilterInput, checks: InputChecks = CHECKS) -> str:
+    """Words saying that the recording's valve input is constant (its range below
+    ``min_input_range_V``), so that it cannot support a diagnosis; '' when it varies."""
+    u = inp.u[0]
+    if np.ptp(u) >= checks.min_input_range_V:
+        return ""
+    return (f"the valve input u is constant ({np.mean(u):.3g} V throughout, range {np.ptp(u):.2g} V < "
+            f"{checks.min_input_range_V:g} V): one operating point cannot tell the faults apart; record the "
+            "machine with the valve driven in both directions")
+
+
+def check_duration(rec: Recording, th: Thresholds, own_baseline: bool, role: str = "") -> None:
+    """Refuse a recording too short to test, or whose input, pressures or position were measured
+    for less than that time (the rest missing): "healthy" would only mean "not looked at".
+    ``role``: the option that gave the recording ("--reference"), for the message."""
     w = th.window
     needed = w.warmup_s + (w.baseline_s if own_baseline else 0.0) + w.min_tested_s
+    parts = f"{w.warmup_s:g} s filter warm-up" + (f", {w.baseline_s:g} s healthy baseline" if own_baseline else "")
+    need = f"a diagnosis needs at least {needed:g} s ({parts} and {w.min_tested_s:g} s to test)"
+    name = f"{rec.source or 'recording'}: " + (f"{role}: " if role else "")
     duration = float(rec.t[-1] - rec.t[0])
     if duration < needed:
-        parts = f"{w.warmup_s:g} s filter warm-up" + (f", {w.baseline_s:g} s healthy baseline" if own_baseline else "")
-        raise UserError(f"{rec.source or 'recording'}: 't': only {duration:.3g} s long; a diagnosis needs at least "
-                        f"{needed:g} s ({parts} and {w.min_tested_s:g} s to test)")
+        raise UserError(f"{name}'t': only {duration:.3g} s long; {need}")
+    for column in ("u", "pA", "pB", "x" if "x" in rec.signals else "theta"):
+        measured = int(np.isfinite(rec.signals[column]).sum())
+        if measured * rec.dt < needed:  # NaN samples are predicted through, but not a whole diagnosis
+            raise UserError(f"{name}'{column}': only {measured} of {rec.n} samples ({measured * rec.dt:.3g} s) are "
+                            f"numbers, the rest missing (NaN); {need}")
