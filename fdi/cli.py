@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 from sam import load_plant, read_recording
 from sam.errors import UserError, output_folder
+from sam.options import integer
 
 from .recording import CHECKS
 from .offline import replay_recording
 from .signatures import signature_table, write_signatures
 from .study import OUTPUT_FILES, StudyDesign, compute_thresholds, write_thresholds
 from .thresholds import SHIPPED_BY_SENSOR, Thresholds, describe
-from .tune import run_tune
+from .tune import run_tune, timing_text
 
 SENSORS = tuple(SHIPPED_BY_SENSOR)
 
@@ -57,7 +59,8 @@ def add_commands(subparsers) -> None:
     g.add_argument("--n-nuisance", type=int, default=128,
                    help="base sample size of the nuisance GSA (a power of 2 recommended; its 2N distinct "
                    "experiments set h)")
-    g.add_argument("--workers", type=int, default=1, help="local worker processes")
+    g.add_argument("--workers", type=integer(minimum=1), default=None,
+                   help="local worker processes (default: every core, as `gsa run`)")
     g.add_argument("--sample-rate", type=float, default=1000.0,
                    help="Hz: the sampling rate of the recordings the thresholds are for (default 1000; "
                    "1000 / rate must be a whole number, at least 100 Hz); replay refuses a recording "
@@ -83,8 +86,9 @@ def add_commands(subparsers) -> None:
                    "cycles; fault runs of 4 s: max(5, N // 5) per fault type and size. Every rate comes with its exact "
                    "95 %% interval; a case can show >= 95 %% only from 72 runs (N >= 360); N = 1000 (200 per case) tells "
                    "a case at 90 %% or at 99 %% apart from 95 %%")
-    t.add_argument("--workers", type=int, default=1,
-                   help="local worker processes (a process pool; --scheduler runs on a dask cluster instead)")
+    t.add_argument("--workers", type=integer(minimum=1), default=None,
+                   help="local worker processes (a process pool; default: every core, as `gsa run`; "
+                        "--scheduler runs on a dask cluster instead)")
     t.add_argument("--scheduler", help="dask scheduler address, e.g. tcp://host:8786")
     t.add_argument("--reference", action="store_true",
                    help="calibrate every Monte Carlo machine on a healthy reference recording of its own first "
@@ -103,6 +107,11 @@ def add_commands(subparsers) -> None:
 
 def _plant(args):
     return load_plant(args.plant)
+
+
+def _workers(args) -> int:
+    """--workers, or every core (as `gsa run`)."""
+    return args.workers or os.cpu_count() or 1
 
 
 def _load_thresholds(path):
@@ -125,8 +134,6 @@ def _load_thresholds(path):
 
 
 def _thresholds(args) -> int:
-    if args.workers < 1:
-        raise UserError(f"--workers: must be >= 1, got {args.workers}")
     k = 1000.0 / args.sample_rate if math.isfinite(args.sample_rate) and args.sample_rate > 0 else float("inf")
     tol, min_rate = CHECKS.rate_tolerance, CHECKS.min_sample_rate_Hz
     # within 1 % of a whole number of ms, as replay matches a recording's rate: 333.3 Hz is 3 ms
@@ -145,7 +152,7 @@ def _thresholds(args) -> int:
     out = output_folder(args.out, OUTPUT_FILES, args.force)
     design = StudyDesign(n_leak=args.n_leak, n_nuisance=args.n_nuisance, trigger_level=trigger,
                          sample_dt_s=round(k) * 1e-3, position_sensor=args.position_sensor)
-    th, report = compute_thresholds(plant, design, workers=args.workers, progress=True)
+    th, report = compute_thresholds(plant, design, workers=_workers(args), progress=True)
     print(describe(th))
     for p in write_thresholds(th, report, out):
         print(f"wrote {p}")
@@ -196,19 +203,10 @@ def _signatures(args) -> int:
 def _tune(args) -> int:
     if args.runs < 5:
         raise UserError(f"--runs: need at least 5 runs, got {args.runs}")
-    if args.workers < 1:
-        raise UserError(f"--workers: must be >= 1, got {args.workers}")
-    m = run_tune(_plant(args), Path(args.out), n_runs=args.runs, workers=args.workers, scheduler=args.scheduler,
+    m = run_tune(_plant(args), Path(args.out), n_runs=args.runs, workers=_workers(args), scheduler=args.scheduler,
                  thresholds=_load_thresholds(args.thresholds), reference=args.reference,
                  bound=args.bound, force=args.force)
     print(Path(args.out, "metrics.md").read_text())
-    tm = m["timing"]
-    if tm["runs_computed"] == 0:  # a re-run of a finished tune: say so rather than "0 runs in 0.0 s"
-        print(f"nothing to compute: all {tm['chunks']} chunks were already in {Path(args.out, 'chunks')}")
-    else:
-        print(f"{tm['runs_computed']} runs in {tm['wall_s']:.1f} s with {tm['workers']} worker(s) "
-              f"({tm['s_per_1000_runs']:.0f} s per 1000 runs)"
-              + (f"; {tm['chunks'] - tm['chunks_computed']} of {tm['chunks']} chunks resumed"
-                 if tm["chunks_computed"] < tm["chunks"] else ""))
+    print(timing_text(m["timing"]))
     print(f"wrote {args.out}/metrics.md, metrics.json, thresholds_used.json, roc.png")
     return 0

@@ -95,6 +95,14 @@ def chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, inputs: str = 
     return res
 
 
+def timed_chunk_job(*args) -> dict:
+    """:func:`chunk_job` with the seconds it took (``compute_s``, a worker's wall time), kept in
+    the chunk so that a resumed tune can state the cost of all its runs, not only of the last part."""
+    t0 = time.perf_counter()
+    res = chunk_job(*args)
+    return {**res, "compute_s": np.float64(time.perf_counter() - t0)}
+
+
 def run_seconds(th: Thresholds, fault) -> float:
     """Length [s] of a tune run: TUNE.fault_run_s for fault runs, the thresholds' run_length_s (the
     run their false-alarm level is stated for) for healthy ones."""
@@ -220,23 +228,48 @@ def compute_chunks(store: Store, plant: Plant, th: Thresholds, jobs: list, tag: 
                    bound: bool = False) -> tuple[dict, dict]:
     """Every chunk of ``jobs`` in mode ``tag`` from ``store``, the missing ones computed (on
     ``scheduler``, ``workers`` local processes, or here) and saved as each finishes: (case name ->
-    its runs' arrays in job order (:func:`gather`), the timing of this call (wall_s [s]))."""
+    its runs' arrays in job order (:func:`gather`), the timing (:func:`timing`))."""
     tasks = {chunk_key(j, tag): (plant, th, *j[1:], reference, bound) for j in jobs}
     sizes = {chunk_key(j, tag): j[3] for j in jobs}
     executor = "dask" if scheduler else "processes" if workers > 1 else "inline"
     chunks, computed = {}, []
     t0 = time.perf_counter()
     pool = workers if executor == "processes" else None
-    for chunk in compute(store, chunk_job, tasks, executor=executor, workers=pool, scheduler=scheduler,
+    for chunk in compute(store, timed_chunk_job, tasks, executor=executor, workers=pool, scheduler=scheduler,
                          progress=progress, desc="fdi tune", unit="run", sizes=sizes):
         chunks[chunk.key] = chunk.arrays
         if not chunk.reused:
             computed.append(chunk.key)
-    wall = time.perf_counter() - t0
-    n_todo = sum(sizes[k] for k in computed)
-    return gather(chunks, jobs, tag), {
-        "runs_computed": n_todo, "wall_s": wall, "workers": workers, "s_per_1000_runs": wall / max(n_todo, 1) * 1000,
-        "chunks_computed": len(computed), "chunks": len(jobs)}
+    return gather(chunks, jobs, tag), timing(chunks, sizes, computed, time.perf_counter() - t0, workers)
+
+
+def timing(chunks: dict, sizes: dict, computed: list, wall_s: float, workers: int) -> dict:
+    """What a tune cost: this call's wall time ``wall_s`` [s] over the chunks it ``computed`` (keys;
+    ``sizes``: key -> runs), and over every chunk of ``chunks`` that recorded its ``compute_s``
+    (chunks of an older samfdi did not) the worker-seconds per 1000 runs, which a resumed tune's
+    wall time does not tell."""
+    n_now = sum(sizes[k] for k in computed)
+    timed = [k for k, a in chunks.items() if "compute_s" in a]
+    worker_s, n_timed = sum(float(chunks[k]["compute_s"]) for k in timed), sum(sizes[k] for k in timed)
+    return {"runs_computed": n_now, "wall_s": wall_s, "workers": workers,
+            "s_per_1000_runs": wall_s / max(n_now, 1) * 1000, "chunks_computed": len(computed), "chunks": len(chunks),
+            "runs": sum(sizes[k] for k in chunks), "runs_timed": n_timed, "worker_s": worker_s,
+            "worker_s_per_1000_runs": worker_s / n_timed * 1000 if n_timed else float("nan")}
+
+
+def timing_text(tm: dict) -> str:
+    """A tune's :func:`timing` in words: this call's wall time, and what every timed chunk cost."""
+    total = (f"{tm['runs_timed']} runs timed in their chunks: {tm['worker_s']:.1f} worker-s "
+             f"({tm['worker_s_per_1000_runs']:.0f} worker-s per 1000 runs)") if tm["runs_timed"] else \
+        "their chunks hold no timings (made by an older samfdi)"
+    if tm["chunks_computed"] == 0:  # a re-run of a finished tune: say so rather than "0 runs in 0.0 s"
+        return f"nothing to compute: all {tm['chunks']} chunks were already in the store; {total}"
+    now = (f"{tm['runs_computed']} runs in {tm['wall_s']:.1f} s with {tm['workers']} worker(s) "
+           f"({tm['s_per_1000_runs']:.0f} s per 1000 runs")
+    if tm["chunks_computed"] == tm["chunks"]:
+        return f"{now})"
+    return (f"{now}: this run's part only; {tm['chunks'] - tm['chunks_computed']} of {tm['chunks']} chunks "
+            f"were resumed from the store); all {tm['runs']} runs: {total}")
 
 
 def fingerprint(plant: Plant, th: Thresholds, n_runs: int) -> dict:

@@ -60,7 +60,8 @@ def calls(monkeypatch):
 
 
 def _tune(out: Path, *extra: str) -> int:
-    return main(["fdi", "tune", "--runs", str(N_RUNS), "--out", str(out), *extra])
+    """The tune command in this process (one worker), where the fake Monte Carlo is patched in."""
+    return main(["fdi", "tune", "--runs", str(N_RUNS), "--workers", "1", "--out", str(out), *extra])
 
 
 def test_resume_refuses_a_folder_made_with_other_settings(tmp_path, calls, capsys):
@@ -81,7 +82,7 @@ def test_resume_refuses_a_folder_made_with_other_settings(tmp_path, calls, capsy
     assert json.loads((out / "metrics.json").read_text())["rows"] == before
     assert f"nothing to compute: all {n_jobs} chunks were already in" in capsys.readouterr().out
 
-    assert main(["fdi", "tune", "--runs", "40", "--out", str(out)]) == 2
+    assert main(["fdi", "tune", "--runs", "40", "--workers", "1", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert str(out) in err and f"--runs {N_RUNS} there, 40 now" in err and "another --out" in err
     assert len(err.splitlines()) == 1
@@ -340,7 +341,7 @@ def test_worker_pool_after_a_simulation_in_the_same_process(tmp_path):
         for job in jobs:
             got = store.load(tune.chunk_key(job, "t"))
             here = tune.chunk_job(plant, th4, *job[1:])
-            assert set(got) == set(here)
+            assert set(got) == set(here) | {"compute_s"}  # and the seconds it took (tune.timed_chunk_job)
             for key in here:
                 np.testing.assert_array_equal(got[key], here[key], err_msg=f"{job[0]} {key}")
 
@@ -370,3 +371,49 @@ def test_smallest_size_needs_every_larger_size_and_runs():
     assert smallest_met(rows, passes) == 1.0
     rows[3]["r"] = float("nan")  # no 1 L/min runs in this third
     assert smallest_met(rows, passes) is None
+
+
+def test_a_resumed_tune_states_what_all_its_runs_cost(tmp_path, calls, capsys):
+    """Each chunk keeps the seconds it took; a tune resumed after losing three chunks says that
+    its wall time covers only the part it computed, and gives the worker-seconds per 1000 runs
+    of all runs from the chunks' own timings (chunks of an older samfdi, without one, are not
+    counted)."""
+    chunks = {"a": {"compute_s": np.float64(2.0)}, "b": {"compute_s": np.float64(3.0)}, "c": {}}
+    tm = tune.timing(chunks, {"a": 10, "b": 5, "c": 5}, ["b"], 4.0, 2)
+    assert (tm["runs_computed"], tm["runs"], tm["runs_timed"], tm["worker_s"]) == (5, 20, 15, 5.0)
+    assert tm["s_per_1000_runs"] == 800.0 and tm["worker_s_per_1000_runs"] == pytest.approx(1000 / 3)
+    assert tune.timing_text(tm) == ("5 runs in 4.0 s with 2 worker(s) (800 s per 1000 runs: this run's part only; "
+                                    "2 of 3 chunks were resumed from the store); all 20 runs: 15 runs timed in their "
+                                    "chunks: 5.0 worker-s (333 worker-s per 1000 runs)")
+
+    out = tmp_path / "t"
+    assert _tune(out) == 0
+    lost = [tune.chunk_key(j) for j in tune.jobs_of(N_RUNS)[2:5]]
+    for key in lost:
+        (out / CHUNK_DIR / f"{key}.npz").unlink()
+    capsys.readouterr()
+    assert _tune(out) == 0
+    said = capsys.readouterr().out.splitlines()[-2]
+    tm = json.loads((out / "metrics.json").read_text())["timing"]
+    n_lost = 3 * 5  # three fault cases of 5 runs
+    assert tm["runs_computed"] == n_lost and tm["runs_timed"] == tm["runs"] == N_RUNS + 5 + 17 * 5
+    assert said.startswith(f"{n_lost} runs in ") and "this run's part only; 16 of 19 chunks were resumed" in said
+    assert said.endswith(f"all {tm['runs']} runs: {tm['runs']} runs timed in their chunks: {tm['worker_s']:.1f} "
+                         f"worker-s ({tm['worker_s_per_1000_runs']:.0f} worker-s per 1000 runs)")
+    assert tm["worker_s"] == pytest.approx(sum(float(np.load(p)["compute_s"]) for p in (out / CHUNK_DIR).glob("*.npz")))
+
+
+def test_workers_default_to_every_core_as_gsa_run(tmp_path, monkeypatch):
+    """`fdi tune` and `fdi thresholds` without --workers use every core, as `gsa run` does."""
+    import os
+    from fdi import cli
+
+    seen = {}
+    monkeypatch.setattr(cli, "run_tune", lambda *a, workers, **k: seen.setdefault("tune", workers) and 1 / 0)
+    monkeypatch.setattr(cli, "compute_thresholds", lambda *a, workers, **k: seen.setdefault("thresholds", workers) and 1 / 0)
+    for cmd in ("tune", "thresholds"):
+        with pytest.raises(ZeroDivisionError):
+            main(["fdi", cmd, "--out", str(tmp_path / cmd)])
+    assert seen == {"tune": os.cpu_count(), "thresholds": os.cpu_count()}
+    gsa = build_parser()._subparsers._group_actions[0].choices["gsa"]._subparsers._group_actions[0].choices["run"]
+    assert "default: all" in {a.dest: a.help for a in gsa._actions}["workers"]
