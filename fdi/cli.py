@@ -100,7 +100,7 @@ def add_commands(subparsers) -> None:
     t.add_argument("--out", required=True, help="output folder (re-run the same command to resume; a folder made "
                    "with other --runs, --thresholds or --plant is refused)")
     t.add_argument("--force", action="store_true",
-                   help="overwrite metrics.md, metrics.json, thresholds_used.json, roc.png in a folder that is not "
+                   help="overwrite metrics.md, metrics.json, thresholds_used.json, rates.png in a folder that is not "
                    "a tune folder")
     t.set_defaults(func=_tune)
 
@@ -208,5 +208,5 @@ def _tune(args) -> int:
                  bound=args.bound, force=args.force)
     print(Path(args.out, "metrics.md").read_text())
     print(timing_text(m["timing"]))
-    print(f"wrote {args.out}/metrics.md, metrics.json, thresholds_used.json, roc.png")
+    print(f"wrote {args.out}/metrics.md, metrics.json, thresholds_used.json, rates.png")
     return 0

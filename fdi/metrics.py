@@ -1,5 +1,5 @@
 """The tune's figures: rates with exact intervals, per fault case, load third and leak flow,
-the smallest sizes met, the ROC curves and the bound; metrics.json, metrics.md and roc.png.
+the smallest sizes met, the ROC data and the bound; metrics.json, metrics.md and rates.png.
 
 A case's runs come as arrays per run (fdi.tune's chunks): per hypothesis the first alarm and the
 maxima of g/h before the onset, within the scored second and over the run; the onset sample; the
@@ -18,6 +18,7 @@ import numpy as np
 from . import bound as onset_bound
 from . import rates
 from .faults import HYPOTHESES
+from .figures import rates_figure
 from .isolation import margin_for
 from .montecarlo import LONG_CYCLES, TUNE
 from .synth import POSITION_SENSORS
@@ -27,9 +28,6 @@ HYP = tuple(HYPOTHESES)
 #: how each position sensor is simulated (fdi.synth.POSITION_SENSORS), for metrics.md
 POSITION_SENSOR_TEXT = {"encoder": "the joint angle from the quantised encoder",
                         "linear": f"x from a linear transducer, white noise {POSITION_SENSORS['linear']['x_noise'] * 1e6:g} um"}
-#: per fault type: colormap (one shade per size), line style and marker of its ROC curves
-ROC_STYLE = {"K_int": ("Blues", "-", "o"), "K_extA": ("Greens", "--", "s"), "K_extB": ("Oranges", "-.", "^"),
-             "offset+": ("Purples", ":", "D"), "offset-": ("Reds", (0, (5, 1, 1, 1)), "v")}
 
 
 def _load_bin(m):
@@ -88,10 +86,10 @@ def analyse(cases: dict, th: Thresholds) -> dict:
 
 
 def write_report(out_dir: Path, metrics: dict, th: Thresholds, reference: bool = False) -> None:
-    """metrics.json (no NaN: null), metrics.md and roc.png into ``out_dir``."""
+    """metrics.json (no NaN: null), metrics.md and rates.png into ``out_dir``."""
     write_json(Path(out_dir) / "metrics.json", metrics)
     (Path(out_dir) / "metrics.md").write_text("\n".join(_markdown(metrics, th, reference)) + "\n")
-    roc_figure(Path(out_dir) / "roc.png", metrics["roc"])
+    rates_figure(Path(out_dir) / "rates.png", metrics, th.derived.false_alarm_level, TUNE.target_rate, rates.interval)
 
 
 def _healthy_rates(d: dict, level: float) -> dict:
@@ -373,35 +371,3 @@ def smallest_met(rows: list, passes) -> float | None:
             break
         met = abs(r["size"])
     return met
-
-
-def roc_figure(path: Path, roc: dict) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 5))
-    for name, det in roc["detection"].items():
-        color, style, marker, label = _roc_style(name)
-        ax.plot(roc["false_alarm"], det, color=color, ls=style, marker=marker, ms=3, label=label, lw=0.9)
-    ax.set_xlabel("false-alarm rate (held-out healthy runs with any alarm), thresholds scaled together")
-    ax.set_ylabel("detected within 1 s (no alarm before onset)")
-    ax.legend(fontsize=6, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def _roc_style(name: str) -> tuple:
-    """(colour, line style, marker, legend label) of the ROC curve of case ``name`` ("K_int_0.25"):
-    each fault type its own colormap, line style and marker, larger sizes darker, so the 17
-    curves stay apart (one 10-colour cycle repeats colours)."""
-    fault, size = name.rsplit("_", 1)
-    size = float(size)
-    key = fault if fault != "offset" else ("offset+" if size > 0 else "offset-")
-    cmap, style, marker = ROC_STYLE[key]
-    sizes = sorted(abs(s) for s in TUNE.fault_sizes[fault] if np.sign(s) == np.sign(size))
-    shade = 0.4 + 0.6 * (sizes.index(abs(size)) + 1) / len(sizes)
-    import matplotlib
-    label = f"offset {size * 100:+g} %" if fault == "offset" else f"{fault} {size:g} L/min"
-    return matplotlib.colormaps[cmap](shade), style, marker, label

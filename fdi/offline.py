@@ -21,7 +21,8 @@ from .bank import DESIGN, BankDesign
 from .conditions import held
 from .config import FilterConfig
 from .diagnosis import Diagnosis, diagnose, shown_statistics
-from .faults import HYPOTHESES, PARAMS
+from .faults import PARAMS
+from .figures import replay_figure
 from .filter import FilterOutput, run_filter
 from .recording import (
     at_thresholds_rate, check_duration, check_observable, detect_position_sensor, excitation_caveat, filter_input,
@@ -31,7 +32,6 @@ from .statistics import residuals, statistics
 from .thresholds import Thresholds
 
 OUTPUT_FILES = ("estimates.csv", "residuals.csv", "diagnosis.json", "replay.png")
-FIGURE_CLIP = 5.0  #: the replay figure shows statistic / threshold up to this
 
 
 @dataclass(frozen=True)
@@ -157,7 +157,7 @@ def replay_recording(rec: Recording, plant: Plant, out_dir, *, force: bool = Fal
     _write_residuals(out_dir / "residuals.csv", t, r.residuals, r.statistics, thresholds)
     (out_dir / "diagnosis.json").write_text(r.diagnosis.to_json() + "\n")
     if figure:
-        _figure(out_dir / "replay.png", t, r, thresholds)
+        replay_figure(out_dir / "replay.png", t, r, thresholds, truth=rec.truth, truth_t=rec.t)
     return r.diagnosis
 
 
@@ -197,75 +197,3 @@ def write_csv(path: Path, cols: dict) -> None:
     names = list(cols)
     data = np.column_stack([np.asarray(cols[n], dtype=float) for n in names])
     np.savetxt(path, data, fmt="%.17g", delimiter=",", header=",".join(names), comments="")
-
-
-def _alarm_lines(diag: Diagnosis) -> list:
-    """(time [s], axvline style) of the alarms to mark: the alarm that stood (red) and the
-    withdrawn ones (grey, dashed); without the bank every hypothesis' first alarm."""
-    lik = diag.likelihood
-    if "withdrawn_alarms_s" not in lik:
-        return [(ta, {"color": "r", "lw": 0.8}) for ta in diag.alarms.values()]
-    lines = [(ta, {"color": "0.5", "lw": 0.8, "ls": "--"}) for ta in lik["withdrawn_alarms_s"]]
-    if lik.get("alarm_s") is not None and lik.get("confirmed_s") is not None:
-        lines.append((lik["alarm_s"], {"color": "r", "lw": 0.8}))
-    return lines
-
-
-def _figure(path: Path, t, r: Replay, th: Thresholds) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out, res, stats, diag = r.output, r.residuals, r.statistics, r.diagnosis
-    fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
-    ax = axes[0]
-    for name, c in zip(("K_int", "K_extA", "K_extB"), ("C0", "C1", "C2")):
-        j = STATE_NAMES.index(name)
-        m, s = leak_lpm(out.mean[0, :, j]), leak_lpm(out.std[0, :, j])
-        ax.plot(t, m, c, label=name)
-        ax.fill_between(t, m - 2 * s, m + 2 * s, color=c, alpha=0.2)
-    ax.set_ylabel("leak [L/min at 10 MPa]")
-    ax.legend(loc="upper left")
-    ax2 = axes[1]
-    j = STATE_NAMES.index("offset")
-    m, s = 100 * out.mean[0, :, j], 100 * out.std[0, :, j]
-    ax2.plot(t, m, "C3", label="offset")
-    ax2.fill_between(t, m - 2 * s, m + 2 * s, color="C3", alpha=0.2)
-    ax2.set_ylabel("offset [% travel]")
-    ax2.legend(loc="upper left")
-    ax3 = axes[2]
-    h = th.test.h
-    for i, (name, g) in enumerate(stats.items()):
-        ax3.plot(t, g[0] / h[name], f"C{i}", label=f"CUSUM {name} / h" if name in HYPOTHESES else f"{name} jump / h")
-    ax3.axhline(1.0, color="k", ls="--", label="threshold")
-    # a real fault drives g/h to hundreds or thousands: clip, so that the threshold stays readable
-    top = max((float(np.nanmax(g[0] / h[name])) for name, g in stats.items()), default=1.0)
-    ax3.set_ylim(0.0, min(max(2.0, 1.1 * top), FIGURE_CLIP))
-    if top > FIGURE_CLIP:
-        ax3.text(0.99, 0.97, f"clipped at {FIGURE_CLIP:g} (max {top:.3g})", transform=ax3.transAxes,
-                 ha="right", va="top", fontsize=8)
-    if "pinned" in res and res["pinned"][0].any():  # stalled / end stop: some tests held
-        ax3.fill_between(t, 0, 1, where=res["pinned"][0] > 0, transform=ax3.get_xaxis_transform(),
-                         color="0.85", label="pinned at supply / tank (tests held)")
-    if "long_stroke" in res and res["long_stroke"][0].any():  # K_int / offset tests count only large excursions
-        ax3.fill_between(t, 0, 1, where=res["long_stroke"][0] > 0, transform=ax3.get_xaxis_transform(),
-                         color="C9", alpha=0.12,
-                         label=f"long stroke (K_int, offset: drift {th.test.long_stroke_drift:g} sigma)")
-    ax3.set_ylabel("statistic / threshold")
-    ax3.set_xlabel("t [s]")
-    ax3.legend(loc="upper left", fontsize=8)
-    for ta, style in _alarm_lines(diag):
-        for a in axes:
-            a.axvline(ta, **style)
-    if diag.likelihood.get("withdrawn_alarms_s"):
-        ax3.plot([], [], color="0.5", lw=0.8, ls="--", label="withdrawn alarm (the bank saw no fault; tests restarted)")
-        ax3.legend(loc="upper left", fontsize=8)
-    title = f"diagnosis: {diag.status} {', '.join(diag.isolated)}"
-    if diag.isolation_time_s is not None:  # the likelihood bank's decision
-        for a in axes:
-            a.axvline(diag.isolation_time_s, color="k", lw=1.2, ls=":")
-        title += f" (isolated by likelihood at {diag.isolation_time_s:.2f} s, dotted)"
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)

@@ -45,7 +45,7 @@ HYP = tuple(HYPOTHESES)
 CHUNK_VERSION = "x"
 #: what a tune writes besides the store: in a folder that is not a tune folder these are the
 #: user's own and are not overwritten without ``force``
-OUTPUTS = ("metrics.md", "metrics.json", "thresholds_used.json", "roc.png")
+OUTPUTS = ("metrics.md", "metrics.json", "thresholds_used.json", "rates.png")
 #: what the manifest says of the chunks, for a person reading it
 LAYOUT = {"chunks": "<case>_<seed>_<mode>.npz: per run of the chunk (fdi.tune.chunk_job)",
           "mode": "x, then c with --reference, b with --bound"}
@@ -356,7 +356,7 @@ def gather(chunks: dict, jobs: list, tag: str = CHUNK_VERSION) -> dict:
 
 def summarise(out_dir: Path, cases: dict, th: Thresholds, reference: bool = False, timing: dict | None = None) -> dict:
     """The metrics of ``cases`` (:func:`gather`; :func:`fdi.metrics.analyse`), written into
-    ``out_dir`` as metrics.json, metrics.md and roc.png; ``timing``: this run's, if it computed."""
+    ``out_dir`` as metrics.json, metrics.md and rates.png; ``timing``: this run's, if it computed."""
     metrics = analyse(cases, th)
     metrics["reference"] = reference
     if timing is not None:

@@ -144,3 +144,39 @@ def test_read_only_and_existing_output_folders(healthy_csv, tmp_path):
             line = one_line_error(samfdi("fdi", *cmd, "--out", str(tmp_path / "done")))
             assert "already holds" in line and "--force" in line
     assert all((tmp_path / "done" / n).read_text() == "mine" for n in ("diagnosis.json", "signatures.md"))
+
+
+def test_replay_figure_draws_the_true_size_and_explains_itself(tmp_path, monkeypatch):
+    """replay.png of a recording with true_* columns (a 1 L/min leak out of A from 2 s) draws the
+    true size as read from them, in L/min at 10 MPa, over the estimate; its legends say what the
+    shading, the dashed alarm level and the vertical lines are, and name the tests in words (no
+    "notch_flow jump / h"), in type readable at the size the figure is shown."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from fdi import K_PER_LPM, replay_recording
+    from fdi.synth import profile
+
+    monkeypatch.setattr(plt, "close", lambda fig=None: None)  # keep the figure to look at it
+    rec = _recording()
+    t = rec.t
+    true = profile("step", K_PER_LPM, t, t0=2.0)
+    faulty = simulate_runs(load_plant().vector()[None], rec.signals["u"], DT, faults={"K_extA": true[None]}, seed=5)
+    rec = Recording(t, {**rec.signals, "pA": faulty.inp.pA[0], "pB": faulty.inp.pB[0], "theta": faulty.inp.pos[0]},
+                    {"true_K_extA": true}, {})
+    d = replay_recording(rec, load_plant(), tmp_path / "r")
+    fig = plt.gcf()
+    plt.close("all")
+    leaks = fig.axes[0]
+    dashed = [ln for ln in leaks.get_lines() if ln.get_linestyle() == "--"]
+    assert len(dashed) == 1
+    np.testing.assert_array_equal(dashed[0].get_xdata(), t)
+    assert dashed[0].get_ydata().max() == pytest.approx(1.0) and dashed[0].get_ydata()[t < 2.0].max() == 0.0
+    texts = [tx for leg in [*fig.legends, *(ax.get_legend() for ax in fig.axes)] if leg for tx in leg.get_texts()]
+    words = " | ".join(tx.get_text() for tx in texts)
+    for phrase in ("+-2 sigma", "the true size", "alarm level: a test alarms where it crosses 1",
+                   "external leak out of A (K_extA)", "valve-flow jump trigger", "the alarm that stood"):
+        assert phrase in words, words
+    assert "/ h" not in words and "notch_flow" not in words and "CUSUM" not in words
+    assert min(tx.get_fontsize() for tx in texts) >= 10
+    assert d.isolated == ["K_extA"] and fig._suptitle.get_text().startswith("fault: K_extA")

@@ -1,6 +1,6 @@
 """`samfdi fdi tune` as a user meets it: the folder it resumes (its chunk store: manifest,
 damaged chunks, the user's own files), bad --out / --scheduler, and what metrics.md /
-metrics.json / roc.png say. The Monte Carlo itself is replaced by hand-made seeded chunks
+metrics.json / rates.png say. The Monte Carlo itself is replaced by hand-made seeded chunks
 (tune.chunk_job monkeypatched), so each test takes well under a second or two."""
 
 from __future__ import annotations
@@ -178,11 +178,11 @@ def test_users_files_are_not_overwritten_without_force(tmp_path, calls, capsys):
     out = tmp_path / "mine"
     out.mkdir()
     (out / "metrics.md").write_text("my notes\n")
-    (out / "roc.png").write_bytes(b"my figure")
+    (out / "rates.png").write_bytes(b"my figure")
     assert _tune(out) == 2
     err = capsys.readouterr().err
-    assert "already holds metrics.md, roc.png" in err and "--force" in err
-    assert (out / "metrics.md").read_text() == "my notes\n" and (out / "roc.png").read_bytes() == b"my figure"
+    assert "already holds metrics.md, rates.png" in err and "--force" in err
+    assert (out / "metrics.md").read_text() == "my notes\n" and (out / "rates.png").read_bytes() == b"my figure"
     assert calls == [] and not (out / CHUNK_DIR).exists()
     assert _tune(out, "--force") == 0
     assert (out / "metrics.md").read_text().startswith("# FDI tuning metrics")
@@ -305,24 +305,38 @@ def test_metrics_md_tables_with_units_and_no_exclusive_column(tmp_path):
     assert "--reference" not in md  # a --bound tune calibrates nothing
 
 
-def test_roc_curves_are_distinguishable(tmp_path, monkeypatch):
-    """roc.png: 17 curves, no two with the same colour and line style; a fault type's sizes
-    share a line style and differ in shade."""
+def test_rates_figure_shows_each_rate_with_its_interval(tmp_path, monkeypatch):
+    """rates.png (was roc.png, 17 near-identical curves): one panel per fault with the detected and
+    the detected-and-isolated share of runs against size, each point k / n with its exact
+    interval as a bar (K_int 0.5 L/min: 4 of 5 isolated), and a panel of false alarms per healthy
+    run with theirs against the stated level."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     monkeypatch.setattr(plt, "close", lambda fig=None: None)  # keep the figure to look at it
-    names = [f"{f}_{s:g}" for f, sizes in TUNE.fault_sizes.items() for s in sizes]
-    roc = {"false_alarm": [0.0, 0.5, 1.0], "detection": {n: [0.1, 0.5, 0.9] for n in names}}
-    metrics.roc_figure(tmp_path / "roc.png", roc)
-    lines = plt.gcf().axes[0].get_lines()
+    jobs, tag, chunks = _hand_made_chunks(False)
+    d = chunks[tune.chunk_key(next(j for j in jobs if j[0] == "healthy"), tag)]
+    d["max"][:1, 0, 2], d["conf_k"][0] = 2.0, 5000  # one false alarm of 10
+    m = tune.summarise(tmp_path, tune.gather(chunks, jobs, tag), Thresholds.shipped())
+    fig = plt.gcf()
     plt.close("all")
-    assert len(lines) == 17
-    looks = {(matplotlib.colors.to_hex(ln.get_color()), str(ln.get_linestyle())) for ln in lines}
-    assert len(looks) == 17
-    k_int = [ln for ln, n in zip(lines, names) if n.startswith("K_int")]
-    assert len({str(ln.get_linestyle()) for ln in k_int}) == 1 and len({ln.get_color() for ln in k_int}) == 4
+    assert (tmp_path / "rates.png").stat().st_size > 10_000 and not (tmp_path / "roc.png").exists()
+    panels = {ax.get_title(): ax for ax in fig.axes}
+    assert set(panels) == {"internal leak, A to B (K_int)", "external leak out of A (K_extA)",
+                           "external leak out of B (K_extB)", "valve spool offset, + side (offset+)",
+                           "valve spool offset, - side (offset-)", "false alarms per healthy run"}
+    detected, isolated = panels["internal leak, A to B (K_int)"].containers
+    assert isolated.get_label() == "detected and isolated within 1 s"
+    rows = [r for r in m["rows"] if r["fault"] == "K_int"]
+    np.testing.assert_allclose(isolated.lines[0].get_ydata(), [100 * r["isolated_within_1s"] for r in rows])
+    assert [r["isolated_within_1s"] for r in rows] == [1.0, 1.0, 0.8, 1.0]
+    bars = np.array([seg[:, 1] for seg in isolated.lines[2][0].get_segments()])
+    np.testing.assert_allclose(bars, 100 * np.array([rates.interval(k, 5) for k in (5, 5, 4, 5)]))
+    (fa,) = panels["false alarms per healthy run"].containers[:1]
+    lo, hi = m["false_alarm_ci"]
+    assert fa.lines[0].get_ydata()[0] == pytest.approx(10.0) and m["false_alarms"] == 1
+    np.testing.assert_allclose(fa.lines[2][0].get_segments()[0][:, 1], [100 * lo, 100 * hi])
 
 
 def test_worker_pool_after_a_simulation_in_the_same_process(tmp_path):
