@@ -200,3 +200,51 @@ def _false_alarm_panel(ax, m: dict, level: float) -> None:
     ax.set_title("false alarms per healthy run")
     ax.legend(loc="upper right")
     ax.grid(alpha=0.3, axis="y")
+
+
+#: the signature figure's words for each fault of the table
+FAULT_WORDS = {"K_int": "internal leak", "K_extA": "ext. leak A", "K_extB": "ext. leak B",
+               "offset+": "offset +2 %", "offset-": "offset -2 %"}
+
+
+#: an effect below this share of the largest on its quantity is left unlabelled (it reads as white)
+NEGLIGIBLE_EFFECT = 0.05
+
+
+def signatures_figure(path: Path, rows: list, quantities: dict, phases: dict) -> None:
+    """signatures.png of the signature table ``rows`` (fdi.signatures): one heat map per motion
+    and phase (``phases``: phase -> its words), a row per fault and load, a column per quantity
+    (``quantities``: table key -> words with unit), each cell coloured by the effect over the
+    largest |effect| on that quantity in the whole table and labelled with its value where that is
+    not negligible."""
+    plt = _pyplot()
+    keys = list(quantities)
+    scale = np.maximum(np.abs(np.array([[r[k] for k in keys] for r in rows], dtype=float)).max(axis=0), 1e-30)
+    panels = list(dict.fromkeys((r["motion"], r["phase"]) for r in rows))
+    with plt.rc_context(FONT):
+        fig, axes = plt.subplots(2, 2, figsize=(17, 13), layout="constrained")
+        order = {f: i for i, f in enumerate(dict.fromkeys(r["fault"] for r in rows))}
+        for ax, (motion, phase) in zip(axes.flat, panels):
+            mine = sorted((r for r in rows if (r["motion"], r["phase"]) == (motion, phase)),
+                          key=lambda r: (order[r["fault"]], r["load_kg"]))
+            M = np.array([[r[k] for k in keys] for r in mine], dtype=float)
+            im = ax.imshow(M / scale, cmap="RdBu_r", vmin=-1, vmax=1, aspect="auto")
+            for (i, j), v in np.ndenumerate(M):
+                if abs(v / scale[j]) >= NEGLIGIBLE_EFFECT:
+                    ax.text(j, i, f"{v:.0f}" if abs(v) >= 10 else f"{v:.2g}", ha="center", va="center", fontsize=9,
+                            color="w" if abs(v / scale[j]) > 0.6 else "k")
+            ax.set_xticks(range(len(keys)), list(quantities.values()), rotation=50, ha="right")
+            ax.set_yticks(range(len(mine)), [f"{FAULT_WORDS.get(r['fault'], r['fault'])}, {r['load_kg']:g} kg"
+                                             + (" (stalled)" if r["stalled"] == "yes" else "") for r in mine])
+            for i in range(1, len(mine)):  # a line between faults
+                if mine[i]["fault"] != mine[i - 1]["fault"]:
+                    ax.axhline(i - 0.5, color="k", lw=1.0)
+            for j in (3, 8):  # measured | estimates | residuals
+                ax.axvline(j - 0.5, color="k", lw=1.0)
+            ax.set_title(f"{motion}, {phases[phase]}")
+        fig.colorbar(im, ax=axes, shrink=0.6, label="effect / largest |effect| on that quantity (sign and size)")
+        fig.suptitle("Fault signatures: each fault (leaks 1 L/min at 10 MPa, offset +-2 %) against the same run "
+                     "without it; cell: the change, in the column's unit (blank: under 5 % of the column's largest)",
+                     x=0.01, ha="left")
+        fig.savefig(path, dpi=DPI)
+        plt.close(fig)

@@ -13,6 +13,7 @@ from sam import P, Plant
 from .statistics import residuals
 from .thresholds import Thresholds
 from .synth import lpm, profile, simulate_runs
+from .figures import signatures_figure
 from .filter import run_filter
 from .states import leak_lpm
 
@@ -26,8 +27,16 @@ PHASES = {"transient": (ONSET, ONSET + 0.3), "steady": (DURATION - 0.5, DURATION
 #: effects there are a stall's (no valve flow to disturb), not the motion's; e.g. extension at
 #: 800 kg with the reconstructed boom geometry (docs/model.md)
 STALL_V = 1e-3
-QUANTITIES = ("d_pA_kPa", "d_pB_kPa", "d_v_mm_s", "est_K_int_Lpm", "est_K_extA_Lpm", "est_K_extB_Lpm",
-              "est_offset_pct", "est_F_d_kN", "r_K_int", "r_K_extA", "r_K_extB", "r_offset+", "r_offset-")
+#: each quantity of the table in words, with its unit: measured outputs, filter estimates, residuals
+QUANTITY_WORDS = {"d_pA_kPa": "p_A [kPa]", "d_pB_kPa": "p_B [kPa]", "d_v_mm_s": "velocity [mm/s]",
+                  "est_K_int_Lpm": "est. internal leak [L/min]", "est_K_extA_Lpm": "est. ext. leak A [L/min]",
+                  "est_K_extB_Lpm": "est. ext. leak B [L/min]", "est_offset_pct": "est. offset [%]",
+                  "est_F_d_kN": "est. load force [kN]", "r_K_int": "internal-leak residual [sigma]",
+                  "r_K_extA": "ext. leak A residual [sigma]", "r_K_extB": "ext. leak B residual [sigma]",
+                  "r_offset+": "offset + residual [sigma]", "r_offset-": "offset - residual [sigma]"}
+QUANTITIES = tuple(QUANTITY_WORDS)
+PHASE_WORDS = {"transient": f"transient (first {PHASES['transient'][1] - ONSET:g} s after the fault)",
+               "steady": f"steady (last {PHASES['steady'][1] - PHASES['steady'][0]:g} s)"}
 
 
 def signature_table(plant: Plant, dt: float = 1e-3, seed: int = 0) -> list[dict]:
@@ -98,7 +107,7 @@ def write_signatures(rows: list[dict], out_dir: Path) -> list[Path]:
         lines.append("| " + " | ".join(_cell(r[k]) for k in keys) + " |")
     md.write_text("\n".join(lines) + "\n")
     png = out_dir / "signatures.png"
-    _heatmap(rows, png)
+    signatures_figure(png, rows, QUANTITY_WORDS, PHASE_WORDS)
     return [csv_path, md, png]
 
 
@@ -106,23 +115,3 @@ def _cell(v) -> str:
     if isinstance(v, float):
         return f"{v:+.3g}"
     return str(v)
-
-
-def _heatmap(rows, path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cols = list(QUANTITIES)
-    M = np.array([[r[c] for c in cols] for r in rows], dtype=float)
-    Mn = M / np.maximum(np.abs(M).max(axis=0, keepdims=True), 1e-30)  # per column: sign and relative size
-    labels = [f"{r['fault']} {r['motion']} {int(r['load_kg'])}kg {r['phase']}"
-              + (" (stalled)" if r["stalled"] == "yes" else "") for r in rows]
-    fig, ax = plt.subplots(figsize=(10, 0.18 * len(rows) + 2))
-    im = ax.imshow(Mn, cmap="RdBu_r", vmin=-1, vmax=1, aspect="auto")
-    ax.set_xticks(range(len(cols)), cols, rotation=60, ha="right", fontsize=7)
-    ax.set_yticks(range(len(rows)), labels, fontsize=6)
-    fig.colorbar(im, ax=ax, label="effect / column max |effect|")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)

@@ -59,3 +59,37 @@ def test_written_files(rows, tmp_path):
     assert [p.name for p in paths] == ["signatures.csv", "signatures.md", "signatures.png"]
     text = (tmp_path / "signatures.md").read_text()
     assert "stalled" in text and text.count("\n| ") == len(rows) + 1
+
+
+def test_figure_has_a_titled_map_per_motion_and_phase(tmp_path, monkeypatch):
+    """signatures.png: one heat map per motion and phase (not one of 60 rows), titled, its rows
+    the faults in words by load (stalled ones marked), each cell the effect over the largest
+    |effect| on its quantity in the whole table (hand-made, seeded rows)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from fdi.signatures import FAULTS, LOADS, MOTIONS, PHASES, QUANTITIES
+
+    monkeypatch.setattr(plt, "close", lambda fig=None: None)  # keep the figure to look at it
+    rng = np.random.default_rng(3)
+    table = [{"fault": f, "motion": mo, "load_kg": m, "phase": ph, "v_healthy_mm_s": 1.0,
+              "stalled": "yes" if (mo, m) == ("extend", 800.0) else "no",
+              **{q: float(rng.normal(0, 10)) for q in QUANTITIES}}
+             for mo in MOTIONS for m in LOADS for f in FAULTS for ph in PHASES]
+    write_signatures(table, tmp_path)
+    fig = plt.gcf()
+    plt.close("all")
+    maps = {ax.get_title(): ax for ax in fig.axes if ax.images}
+    assert set(maps) == {"extend, transient (first 0.3 s after the fault)", "extend, steady (last 0.5 s)",
+                         "retract, transient (first 0.3 s after the fault)", "retract, steady (last 0.5 s)"}
+    scale = np.abs([[r[q] for q in QUANTITIES] for r in table]).max(axis=0)
+    ax = maps["extend, steady (last 0.5 s)"]
+    mine = [r for r in table if (r["motion"], r["phase"]) == ("extend", "steady")]
+    mine.sort(key=lambda r: (list(FAULTS).index(r["fault"]), r["load_kg"]))
+    np.testing.assert_allclose(ax.images[0].get_array(), [[r[q] for q in QUANTITIES] for r in mine] / scale)
+    labels = [tx.get_text() for tx in ax.get_yticklabels()]
+    assert labels[:3] == ["internal leak, 0 kg", "internal leak, 494 kg", "internal leak, 800 kg (stalled)"]
+    assert [tx.get_text() for tx in ax.get_xticklabels()][:3] == ["p_A [kPa]", "p_B [kPa]", "velocity [mm/s]"]
+    assert min(tx.get_fontsize() for tx in ax.get_yticklabels() + ax.get_xticklabels()) >= 10
