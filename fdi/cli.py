@@ -10,8 +10,8 @@ from sam import load_plant, read_recording
 from sam.errors import UserError, output_folder
 from sam.options import integer
 
-from .recording import CHECKS
 from .offline import replay_recording
+from .recording import CHECKS
 from .signatures import signature_table, write_signatures
 from .study import OUTPUT_FILES, StudyDesign, compute_thresholds, write_thresholds
 from .thresholds import SHIPPED_BY_SENSOR, Thresholds, describe
@@ -169,11 +169,11 @@ def _replay(args) -> int:
                             drop_out_of_range=args.drop_out_of_range, baseline=base, reference=ref,
                             plant_name=args.plant or "the shipped plant (scenarios/plants/sam.toml)",
                             position_sensor=args.position_sensor)
+    print(diag.headline())  # first: what a person reads first
     if th is None and diag.thresholds["position_sensor"] != "encoder":
         print(f"position sensor: {diag.thresholds['position_sensor']} "
               f"({'as given' if args.position_sensor else 'x is not on the encoder grid'}): the shipped "
               f"thresholds for it ({diag.thresholds['source']})")
-    print(diag.headline())
     cal = diag.filter_health.get("calibrated_from_reference")
     if cal:
         print("calibrated from the reference: " + ", ".join(

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 from .states import STATE_NAMES, leak_lpm
 
 FONT = {"font.size": 11, "axes.titlesize": 12, "legend.fontsize": 10}
