@@ -143,17 +143,12 @@ def _demo_mismatch(out: Path) -> None:
 
 
 def _describe(diagnosis) -> str:
-    """One line of a fdi.Diagnosis: status, isolated faults with size, detection time."""
-    parts = [diagnosis.status]
-    for name in diagnosis.isolated:
-        size = diagnosis.size.get(name)
-        if size:
-            parts.append(f"{name} {size['value']:.3g} {size['unit']}")
-    if diagnosis.detection_time_s is not None:
-        parts.append(f"alarm at {diagnosis.detection_time_s:.2f} s")
-    if getattr(diagnosis, "isolation_time_s", None) is not None:
-        parts.append(f"isolated by likelihood at {diagnosis.isolation_time_s:.2f} s")
-    return ", ".join(parts)
+    """One line of a fdi.Diagnosis: its headline (caveats first, as replay prints it) and when the
+    fault was isolated."""
+    line = diagnosis.headline().replace("\n", " | ")
+    if diagnosis.isolation_time_s is not None:
+        line += f", isolated at t = {diagnosis.isolation_time_s:.2f} s"
+    return line
 
 
 def _steady_ranking(path: Path) -> dict[str, str]:
