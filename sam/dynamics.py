@@ -29,7 +29,8 @@ import numpy as np
 from .constants import P_CAVITATION
 from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, stribeck
 from .geometry import (
-    cos_joint_angle, load_torque_cs, quarter_turn_cos_sin, stroke_end, torque_arm_cs, total_inertia,
+    cos_joint_angle, load_torque_cs, quarter_turn_cos_sin, stroke_end, torque_arm_cs, torque_arm_slope_cs,
+    total_inertia,
 )
 from .hydraulics import (
     fault_leakages, flow_coefficient, inverse_capacitance, leak_conductance, valve_flows, valve_flows_ideal,
@@ -175,9 +176,10 @@ def rates(y, u, p, d, j, leaks=True, effects=True, f=np.float64):
 
     Friction is LuGre (Eq. (17)); the load force is Eq. (21) plus the disturbance force F_d;
     leak faults are Eqs. (41)-(43); the optional effects of :class:`sam.params.Effects` enter
-    through the hydraulics and friction functions. ``leaks=False`` promises K_int = K_extA =
-    K_extB = K_bypass = 0 and ``effects=False`` lap >= 0, R_supply = 0, Q_sat = inf and
-    air_fraction = 0 (:func:`kernel_variant`): the same numbers without the arithmetic that
+    through the hydraulics and friction functions; Eq. (7)'s R-dot term where the plant's
+    ``[equations]`` keep it. ``leaks=False`` promises K_int = K_extA = K_extB = K_bypass = 0 and
+    ``effects=False`` lap >= 0, R_supply = 0, Q_sat = inf, air_fraction = 0 and no R-dot term
+    (:func:`kernel_variant`): the same numbers without the arithmetic that
     would give zeros. ``f`` is the float type of the arithmetic.
     """
     p_A, p_B, x_s, dx_s, x, v, z = y
@@ -234,6 +236,10 @@ def rates(y, u, p, d, j, leaks=True, effects=True, f=np.float64):
     F_mu = lugre_force(v, z, dz, sigma_0, d[D.sigma_1_r, j] * inv_r, p[P.b, j])
 
     dv = (p_A * A_A - p_B * A_B - F_mu - F_ext) * inv_m_red
+    if effects:
+        # Eq. (7)'s R-dot term, which Eq. (19) neglects: v = r omega, so dv/dt = r omega' + r'(theta) omega^2
+        arm_rate = torque_arm_slope_cs(x, cos_theta, r, L_1, L_2, L_3) * v * v * inv_r * inv_r
+        dv = where(p[P.arm_rate_torque, j] != f(0.0), dv + arm_rate, dv)
     return (Q_netA * c_A, Q_netB * c_B, dx_s, ddx_s, v, dv, dz), c_A, c_B, G_A, G_B, G_AB
 
 
@@ -545,13 +551,13 @@ LEAK_COLS = np.array([P.K_int, P.K_extA, P.K_extB, P.K_bypass], dtype=np.int64)
 def kernel_variant(params):
     """(leaks, effects) of :func:`step_lanes` for a batch of parameter rows (n, len(P)): whether
     any row has a leak path (K_int, K_extA, K_extB, K_bypass non-zero), and whether any has an
-    underlapped valve, supply droop, a flow limit or entrained air."""
+    underlapped valve, supply droop, a flow limit, entrained air or Eq. (7)'s R-dot term."""
     leaks, effects = False, False
     for i in range(params.shape[0]):
         for c in LEAK_COLS:
             leaks |= params[i, c] != 0.0
         effects |= ((params[i, P.lap] < 0.0) | (params[i, P.R_supply] != 0.0) | (params[i, P.Q_sat] != np.inf)
-                    | (params[i, P.air_fraction] != 0.0))
+                    | (params[i, P.air_fraction] != 0.0) | (params[i, P.arm_rate_torque] != 0.0))
     return leaks, effects
 
 
