@@ -45,8 +45,8 @@ class SamModel:
         time_varying: parameter name -> (n_steps,) profile shared by all runs (e.g. the load).
         threads: numba threads to use (1 inside process or dask workers: the
             executor already spreads the work over the cores).
-        precision: the step's arithmetic, ``"float64"`` or ``"float32"`` (twice the lanes per
-            vector instruction; how far the paper's indices move: docs/benchmarks.md).
+        precision: the step's arithmetic, ``"float64"`` or ``"float32"`` (faster; how far the
+            paper's indices move: docs/benchmarks.md).
     """
 
     base: np.ndarray
