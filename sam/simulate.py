@@ -126,8 +126,8 @@ def simulate_batch(
         scheme: ``"euler"`` (Eq. (22)), ``"semi_implicit"``, ``"heun"`` or ``"rk4"``
             (:class:`sam.dynamics.Scheme`). The defaults are Eq. (22) at ``dt``.
         precision: ``"float64"``, or ``"float32"``: the step's arithmetic in single precision,
-            twice the lanes per vector instruction (for the GSA, whose indices tolerate it:
-            docs/benchmarks.md). The states returned are float64 either way.
+            about 1.4x faster (for the GSA, whose indices tolerate it: docs/benchmarks.md). The
+            states returned are float64 either way.
     """
     if scheme not in SCHEMES:
         raise ValueError(f"scheme must be one of {sorted(SCHEMES)}, got {scheme!r}")
