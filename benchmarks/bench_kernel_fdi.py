@@ -28,15 +28,20 @@ def child() -> None:
     import numba
 
     from fdi.montecarlo import make_batch
-    from fdi.synth import input_signal, lpm, profile, simulate_runs
-    from fdi.ukf import run_filter
+    from fdi.synth import input_signal, profile, simulate_runs
     from sam import load_plant
+    from sam.hydraulics import leak_coefficient
+
+    try:
+        from fdi import run_filter  # fdi's public face, since its redesign
+    except ImportError:
+        from fdi.ukf import run_filter  # before it (the code before the lane kernel)
 
     numba.set_num_threads(1)
     plant = load_plant()
     t = np.arange(4001) * 1e-3
     u = input_signal("sine", t, amplitude=3.0, frequency=0.25)
-    runs = simulate_runs(plant.vector()[None], u, 1e-3, faults={"K_extA": profile("step", lpm(1), t, 2.0)})
+    runs = simulate_runs(plant.vector()[None], u, 1e-3, faults={"K_extA": profile("step", leak_coefficient(1.0), t, 2.0)})
     mc = make_batch(plant, 100, 1)
     run_filter(runs.inp), run_filter(mc.inp)  # compile / load the cache
 
