@@ -45,6 +45,8 @@ class SamModel:
         time_varying: parameter name -> (n_steps,) profile shared by all runs (e.g. the load).
         threads: numba threads to use (1 inside process or dask workers: the
             executor already spreads the work over the cores).
+        precision: the step's arithmetic, ``"float64"`` or ``"float32"`` (faster; how far the
+            paper's indices move: docs/benchmarks.md).
     """
 
     base: np.ndarray
@@ -57,6 +59,7 @@ class SamModel:
     steady_from: int
     time_varying: dict | None = None
     threads: int | None = None
+    precision: str = "float64"
 
     @property
     def n_outputs(self) -> int:
@@ -79,7 +82,7 @@ class SamModel:
         params = np.tile(self.base, (X.shape[0], 1))
         params[:, list(self.columns)] = X * self.scales
         res = sam.simulate_batch(params, self.u, self.dt, time_varying=self.time_varying,
-                                 record_at=self.record_at, channels=self.signals)
+                                 record_at=self.record_at, channels=self.signals, precision=self.precision)
         steady = self.record_at >= self.steady_from
         blocks = []
         for s in self.signals:

@@ -37,7 +37,7 @@ _TOP = {"name", "description", "model", "N", "seed", "estimator", "n_bootstrap",
         "parameters", "simulation", "model_options", "steady_state"}
 _PARAM_KEYS = {"bounds", "distribution", "unit", "description", "group"}
 _SIM_KEYS = {"duration_s", "dt_s", "outputs", "every_s", "instants_s", "steady_from_s", "input",
-             "load", "plant"}
+             "load", "plant", "precision"}
 
 
 @dataclass(frozen=True)
@@ -206,6 +206,7 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
     from sam.plant import load_plant
     from sam.profiles import INPUT_KINDS, evaluate
     from sam.scenario import check_step, load_mass_profile
+    from sam.simulate import PRECISIONS
 
     from gsa.sam_model import OUTPUT_WORDS, SamModel
 
@@ -250,11 +251,15 @@ def _sam_study(table, source, name, problem, units, common) -> StudySpec:
     if not steady_from < duration:
         raise UserError(f"{where(source, 'simulation.steady_from_s')}: must be before the end of the run "
                         f"({duration:g} s), got {steady_from:g}")
+    precision = sim.get("precision", "float64")
+    if precision not in PRECISIONS:
+        raise UserError(f"{where(source, 'simulation.precision')}: expected one of {sorted(PRECISIONS)}, "
+                        f"got {precision!r}")
     model = SamModel(
         base=base, columns=tuple(int(sam.P[n]) for n in problem.names),
         scales=np.array([UNITS[u_] for u_ in units]), u=u, dt=dt,
         record_at=np.arange(stride, n_steps + 1, stride), signals=outputs,
-        steady_from=int(round(steady_from / dt)), time_varying=time_varying,
+        steady_from=int(round(steady_from / dt)), time_varying=time_varying, precision=precision,
     )
     names, times = model.output_names_and_times()
     study = Study(name, problem, model, output_names=names, output_times=times)

@@ -3,8 +3,10 @@
 Nurmi & Mattila (2011), Section 2: a servo valve, an asymmetric cylinder, a boom
 with loads, LuGre friction and leakage faults, advanced by forward Euler
 (Eq. (22); a chamber pressure semi-implicit where it is stiff, against a rail through an open
-edge) or, when asked, by sub-steps of a higher-order scheme. One step function, :func:`step`,
-serves the batch simulator, the global sensitivity analysis and the Unscented Kalman Filter.
+edge) or, when asked, by sub-steps of a higher-order scheme. One step function
+(:func:`sam.dynamics.step_lanes`, which advances a block of runs in one vectorised loop) serves
+the batch simulator, the global sensitivity analysis and the Unscented Kalman Filter;
+:func:`step` is the same step of one state.
 
 Public face:
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .simd import exp
+
 # error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
 jit = numba.njit(cache=True, error_model="numpy")
 
@@ -17,13 +19,13 @@ jit = numba.njit(cache=True, error_model="numpy")
 @jit
 def stribeck(v, F_C, F_S, v_s):
     """g(v) = F_C + (F_S - F_C) exp(-(v/v_s)^2) [N]: the steady-state friction magnitude."""
-    return F_C + (F_S - F_C) * np.exp(-((v / v_s) ** 2))
+    return F_C + (F_S - F_C) * exp(-((v / v_s) ** 2))
 
 
 @jit
-def seal_loaded(F, p_A, p_B, k_fric_p):
+def seal_loaded(F, p_A, p_B, k_fric_p, f=np.float64):
     """A friction level F [N] raised by the chamber pressures on the seals (an optional effect)."""
-    return F + k_fric_p * np.maximum(p_A + p_B, 0.0)
+    return F + k_fric_p * np.maximum(p_A + p_B, f(0.0))
 
 
 @jit

@@ -49,9 +49,9 @@ def stroke_end(x_max, theta_max, L_1, L_2, L_3):
 
 
 @jit
-def cos_joint_angle(x, L_1, L_2, L_3):
-    """cos(theta) from the piston position x [m]: Eq. (3) solved for theta."""
-    return (L_1**2 + L_2**2 - (x + L_3) ** 2) / (2.0 * L_1 * L_2)
+def cos_joint_angle(x, L_1, L_2, L_3, f=np.float64):
+    """cos(theta) from the piston position x [m]: Eq. (3) solved for theta (``f``: the float type)."""
+    return (L_1**2 + L_2**2 - (x + L_3) ** 2) / (f(2.0) * L_1 * L_2)
 
 
 @jit
@@ -64,6 +64,13 @@ def joint_angle(x, L_1, L_2, L_3):
 def torque_arm_cs(x, sin_theta, L_1, L_2, L_3):
     """Eq. (5): r [m], given the piston position x [m] and sin(theta) at that x."""
     return L_1 * L_2 * sin_theta / (x + L_3)
+
+
+@jit
+def torque_arm_slope_cs(x, cos_theta, r, L_1, L_2, L_3):
+    """dr/dtheta [m] of Eq. (5), given x [m], cos(theta) and r there: ``(L_1 L_2 cos(theta) - r^2) / (x + L_3)``
+    (the pin distance x + L_3 grows at r per radian)."""
+    return (L_1 * L_2 * cos_theta - r * r) / (x + L_3)
 
 
 @jit
@@ -105,7 +112,7 @@ def quarter_turn_cos_sin(angle):
 
 
 @jit
-def load_torque_cs(cos_theta, sin_theta, cos_level, sin_level, cos_cog, sin_cog, m_B, r_B, m_L, m_R, L):
+def load_torque_cs(cos_theta, sin_theta, cos_level, sin_level, cos_cog, sin_cog, m_B, r_B, m_L, m_R, L, f=np.float64):
     """Net gravity torque [N m] opposing extension, tau_mL - tau_mR + tau_B (Eqs. (16), (21)),
     from cos/sin of the joint angle theta, of theta_level and of cog_angle.
 
@@ -114,7 +121,7 @@ def load_torque_cs(cos_theta, sin_theta, cos_level, sin_level, cos_cog, sin_cog,
     """
     cos_phi = cos_theta * cos_level + sin_theta * sin_level
     sin_phi = sin_theta * cos_level - cos_theta * sin_level
-    return (m_L - m_R) * G * L * cos_phi + m_B * G * r_B * (cos_phi * cos_cog - sin_phi * sin_cog)
+    return (m_L - m_R) * f(G) * L * cos_phi + m_B * f(G) * r_B * (cos_phi * cos_cog - sin_phi * sin_cog)
 
 
 @jit

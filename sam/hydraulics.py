@@ -1,8 +1,10 @@
 """Valve, leakage and chamber equations, Eqs. (8)-(14) and (41)-(43).
 
-Each function is compiled by numba for scalar arguments: the model kernel calls
-them per run and per step, and skips the square roots of closed edges and absent
-leaks. Flows are in m^3/s, positive into the chamber; pressures in Pa (gauge).
+Each function is compiled by numba for scalar arguments: the model kernel calls them per run
+and per step, for many runs in one vectorised loop, so they are branch-free (:func:`sam.simd.where`):
+a closed edge or an absent leak goes through the same arithmetic and comes out 0. The optional
+``f`` argument is the float type of the arithmetic (np.float32 in the GSA's single-precision
+kernel). Flows are in m^3/s, positive into the chamber; pressures in Pa (gauge).
 """
 
 from __future__ import annotations
@@ -13,15 +15,18 @@ import numba
 import numpy as np
 
 from .constants import KAPPA_AIR, LEAK_REFERENCE_DP, LPM, P_ATM, P_CAVITATION
+from .simd import sqrt, where
 
 # error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
 jit = numba.njit(cache=True, error_model="numpy")
+# inlined where the kernel calls it: too large for LLVM's inliner, and a call stops the vectoriser
+jit_inline = numba.njit(cache=True, inline="always", error_model="numpy")
 
 
 @jit
 def ssqrt(dp):
     """Sign-preserving square root, sgn(dp) sqrt(|dp|): turbulent flow in either direction."""
-    return math.copysign(math.sqrt(abs(dp)), dp)
+    return np.copysign(sqrt(abs(dp)), dp)
 
 
 @jit
@@ -56,28 +61,45 @@ DP_CONDUCTANCE_MIN = 1.0
 
 
 @jit
-def orifice_flow_conductance(K_v, opening, dp, R_supply, Q_sat):
+def orifice_flow_conductance(K_v, opening, dp, R_supply, Q_sat, f=np.float64):
     """(q, G) of one metering edge of Eqs. (10)-(11): the flow of :func:`orifice_flow` [m^3/s]
     and its chord conductance G = q / dp [m^3/(s Pa)], ``2 k / (sqrt((R k)^2 + 4 |dp|) + R k)``
     (``k / sqrt(|dp|)`` without the droop; ``Q_sat / |dp|`` when saturated), taken at
     |dp| >= DP_CONDUCTANCE_MIN. G is what the semi-implicit pressure step needs
-    (:func:`sam.dynamics.euler_step`); the one square root serves both."""
+    (:func:`sam.dynamics.rates`). Branch-free: a closed edge (k = 0) gives (0, 0) through the
+    same arithmetic; ``f`` is the float type (np.float32 in the GSA's single-precision kernel)."""
     k = K_v * opening
-    if k == 0.0:  # closed edge: most of the time for two of the four
-        return 0.0, 0.0
     Rk = R_supply * k
-    root = math.sqrt(Rk * Rk + 4.0 * abs(dp))
-    q = math.copysign(k * 0.5 * (root - Rk), dp)
-    if abs(dp) < DP_CONDUCTANCE_MIN:  # the chord at the floor (rare: the square root again)
-        root = math.sqrt(Rk * Rk + 4.0 * DP_CONDUCTANCE_MIN)
-    G = 2.0 * k / (root + Rk)
-    if abs(q) > Q_sat:
-        return math.copysign(Q_sat, q), Q_sat / max(abs(dp), DP_CONDUCTANCE_MIN)
-    return q, G
+    root = sqrt(Rk * Rk + f(4.0) * abs(dp))
+    q = np.copysign(k * f(0.5) * (root - Rk), dp)
+    # the chord at the floor: the same square root unless |dp| is below it
+    G = f(2.0) * k / (sqrt(Rk * Rk + f(4.0) * max(abs(dp), f(DP_CONDUCTANCE_MIN))) + Rk)
+    return saturated(q, G, dp, Q_sat, f)
 
 
 @jit
-def edge_openings(x_s, offset, lap):
+def turbulent_flow_conductance(k, dp, f=np.float64):
+    """(q, G) of :func:`orifice_flow_conductance` without the droop and the flow limit (R_supply = 0,
+    Q_sat = inf), for a path of coefficient k = K_v * opening [m^3/(s Pa^0.5)]: ``q = k ssqrt(dp)``
+    and ``G = k / sqrt(max(|dp|, DP_CONDUCTANCE_MIN))``, from one square root. The same numbers
+    to the last bit."""
+    root = sqrt(f(4.0) * abs(dp))
+    return np.copysign(k * f(0.5) * root, dp), f(2.0) * k / max(root, f(_ROOT_MIN))
+
+
+_SQRT_DP_MIN = math.sqrt(DP_CONDUCTANCE_MIN)
+_ROOT_MIN = math.sqrt(4.0 * DP_CONDUCTANCE_MIN)  # the root of turbulent_flow_conductance at the floor
+
+
+@jit
+def saturated(q, G, dp, Q_sat, f=np.float64):
+    """(q, G) of a path held at the flow limit |q| <= Q_sat [m^3/s] (``inf`` disables it)."""
+    sat = abs(q) > Q_sat
+    return where(sat, np.copysign(Q_sat, q), q), where(sat, Q_sat / max(abs(dp), f(DP_CONDUCTANCE_MIN)), G)
+
+
+@jit
+def edge_openings(x_s, offset, lap, f=np.float64):
     """Openings (fraction of full travel) of the edges P->A/B->T and P->B/A->T.
 
     Eqs. (10)-(11) open P->A and B->T by ``x_s + offset`` when positive and P->B
@@ -86,7 +108,7 @@ def edge_openings(x_s, offset, lap):
     a little around null. At lap = 0 this is exactly the paper's valve.
     """
     x_o = x_s + offset
-    return max(x_o - lap, 0.0), max(-x_o - lap, 0.0)
+    return max(x_o - lap, f(0.0)), max(-x_o - lap, f(0.0))
 
 
 @jit
@@ -97,39 +119,67 @@ def null_leakage(p_chamber, p_S, p_T, K_leak_in, K_leak_out):
     return K_leak_in * (p_S - p_chamber) - K_leak_out * (p_chamber - p_T)
 
 
-@jit
+@jit_inline
 def valve_flows(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
-                K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, R_supply, Q_sat):
+                K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, R_supply, Q_sat, f=np.float64):
     """Eqs. (10)-(14): (Q_A, Q_B, G_A, G_B), the valve flows [m^3/s] into chambers A and B and,
     per chamber, the sum of the chord conductances q / dp [m^3/(s Pa)] of the valve paths that
     join it to the supply and the tank (the open metering edges, :func:`orifice_flow_conductance`,
-    and the laminar null leakage, :func:`null_leakage`)."""
-    a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap)
-    q_PA, g_PA = orifice_flow_conductance(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat)
-    q_AT, g_AT = orifice_flow_conductance(K_AT, a_PB_AT, p_A - p_T, 0.0, Q_sat)
-    q_PB, g_PB = orifice_flow_conductance(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat)
-    q_BT, g_BT = orifice_flow_conductance(K_BT, a_PA_BT, p_B - p_T, 0.0, Q_sat)
-    Q_A, Q_B = q_PA - q_AT, q_PB - q_BT
-    G_A, G_B = g_PA + g_AT, g_PB + g_BT
-    if abs(x_s + offset) < leak_band:
-        Q_A += null_leakage(p_A, p_S, p_T, K_leak_PA, K_leak_AT)
-        Q_B += null_leakage(p_B, p_S, p_T, K_leak_PB, K_leak_BT)
-        G_A += K_leak_PA + K_leak_AT
-        G_B += K_leak_PB + K_leak_BT
-    return Q_A, Q_B, G_A, G_B
+    and the laminar null leakage, :func:`null_leakage`). Every edge is evaluated (an underlapped
+    spool opens all four); :func:`valve_flows_ideal` is the same for a valve that opens at most two."""
+    a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap, f)
+    q_PA, g_PA = orifice_flow_conductance(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat, f)
+    q_AT, g_AT = _tank_edge(K_AT * a_PB_AT, p_A - p_T, Q_sat, f)
+    q_PB, g_PB = orifice_flow_conductance(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat, f)
+    q_BT, g_BT = _tank_edge(K_BT * a_PA_BT, p_B - p_T, Q_sat, f)
+    return _with_null_leakage(q_PA - q_AT, q_PB - q_BT, g_PA + g_AT, g_PB + g_BT, x_s, p_A, p_B, offset, p_S, p_T,
+                              K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band)
 
 
 @jit
-def leak_conductance(q, dp, K):
+def _tank_edge(k, dp, Q_sat, f):
+    """(q, G) of an edge draining to the tank: no supply droop on it."""
+    q, G = turbulent_flow_conductance(k, dp, f)
+    return saturated(q, G, dp, Q_sat, f)
+
+
+@jit
+def valve_flows_ideal(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
+                      K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, f=np.float64):
+    """:func:`valve_flows` of a valve without underlap, supply droop or flow limit (lap >= 0,
+    R_supply = 0, Q_sat = inf; the paper's valve): at most one pair of edges is open, so the pair
+    is chosen first, by the sign of the opening, and two square roots serve where four would.
+    The same numbers to the last bit."""
+    a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap, f)
+    extend = a_PA_BT > f(0.0)  # P->A and B->T open (else P->B and A->T, or none)
+    q_s, g_s = turbulent_flow_conductance(where(extend, K_PA * a_PA_BT, K_PB * a_PB_AT),
+                                          where(extend, p_S - p_A, p_S - p_B), f)
+    q_t, g_t = turbulent_flow_conductance(where(extend, K_BT * a_PA_BT, K_AT * a_PB_AT),
+                                          where(extend, p_B - p_T, p_A - p_T), f)
+    zero = f(0.0)  # the closed edges' flow, subtracted as valve_flows does
+    return _with_null_leakage(where(extend, q_s, zero - q_t), where(extend, zero - q_t, q_s),
+                              where(extend, g_s, g_t), where(extend, g_t, g_s), x_s, p_A, p_B, offset, p_S, p_T,
+                              K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band)
+
+
+@jit
+def _with_null_leakage(Q_A, Q_B, G_A, G_B, x_s, p_A, p_B, offset, p_S, p_T,
+                       K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band):
+    """The metering edges' (Q_A, Q_B, G_A, G_B) plus the null leakage while the spool is in its band."""
+    band = abs(x_s + offset) < leak_band
+    return (where(band, Q_A + null_leakage(p_A, p_S, p_T, K_leak_PA, K_leak_AT), Q_A),
+            where(band, Q_B + null_leakage(p_B, p_S, p_T, K_leak_PB, K_leak_BT), Q_B),
+            where(band, G_A + (K_leak_PA + K_leak_AT), G_A), where(band, G_B + (K_leak_PB + K_leak_BT), G_B))
+
+
+@jit
+def leak_conductance(q, dp, K, f=np.float64):
     """Chord conductance q / dp [m^3/(s Pa)] of a turbulent leak ``q = K ssqrt(dp)`` (Eqs. (41)-(43))
     that passes ``q`` at ``dp``: from the flow already computed, a division and no square root;
     below |dp| = DP_CONDUCTANCE_MIN the chord there, ``K / sqrt(DP_CONDUCTANCE_MIN)``; 0 without
-    the leak, with no division (a healthy simulation's every step)."""
-    if K == 0.0:
-        return 0.0
-    if abs(dp) < DP_CONDUCTANCE_MIN:
-        return K / math.sqrt(DP_CONDUCTANCE_MIN)
-    return abs(q) / abs(dp)
+    the leak."""
+    G = where(abs(dp) < f(DP_CONDUCTANCE_MIN), K / f(_SQRT_DP_MIN), abs(q) / abs(dp))
+    return where(K == f(0.0), f(0.0), G)
 
 
 @jit
@@ -148,12 +198,9 @@ def fault_leakages(p_A, p_B, p_T, K_int, K_extA, K_extB):
     Returns (Q_int from A to B, Q_extA out of A, Q_extB out of B). The paper
     assumes p_T = 0 and positive pressure differences; the sign-preserving
     square root keeps the flows defined (and reversing) when p_A < p_B or a
-    pressure is at or below tank pressure.
+    pressure is at or below tank pressure. A leak of K = 0 is 0.
     """
-    Q_int = K_int * ssqrt(p_A - p_B) if K_int != 0.0 else 0.0
-    Q_extA = K_extA * ssqrt(p_A - p_T) if K_extA != 0.0 else 0.0
-    Q_extB = K_extB * ssqrt(p_B - p_T) if K_extB != 0.0 else 0.0
-    return Q_int, Q_extA, Q_extB
+    return K_int * ssqrt(p_A - p_B), K_extA * ssqrt(p_A - p_T), K_extB * ssqrt(p_B - p_T)
 
 
 @jit
@@ -171,7 +218,7 @@ def fault_leakages_batch(p_A, p_B, p_T, K_int, K_extA, K_extB):
 
 
 @jit
-def effective_bulk_modulus(p, B_eff, air_fraction):
+def effective_bulk_modulus(p, B_eff, air_fraction, f=np.float64):
     """Bulk modulus [Pa] of oil with entrained free air, at gauge pressure p [Pa].
 
     ``1/B = 1/B_eff + eps(p) / (kappa p_abs)``, with the free-air fraction
@@ -179,20 +226,20 @@ def effective_bulk_modulus(p, B_eff, air_fraction):
     At air_fraction = 0 it is the paper's constant B_eff. The stiffness falls
     steeply at low pressure: the hallmark of entrained air.
     """
-    if air_fraction == 0.0:  # the common case; skips two powers per chamber per step
-        return B_eff
-    p_abs = max(p + P_ATM, P_CAVITATION + P_ATM)
-    eps = air_fraction * (P_ATM / p_abs) ** (1.0 / KAPPA_AIR)
-    return 1.0 / (1.0 / B_eff + eps / (KAPPA_AIR * p_abs))
+    p_abs = max(p + f(P_ATM), f(P_CAVITATION + P_ATM))
+    eps = air_fraction * (f(P_ATM) / p_abs) ** f(1.0 / KAPPA_AIR)
+    B = f(1.0) / (f(1.0) / B_eff + eps / (f(KAPPA_AIR) * p_abs))
+    return where(air_fraction == f(0.0), B_eff, B)
 
 
 @jit
-def inverse_capacitance(V, p, B_eff, air_fraction, C_hose):
+def inverse_capacitance(V, p, B_eff, air_fraction, C_hose, f=np.float64, air=True):
     """Eqs. (8)-(9): dp/dt per unit net inflow [Pa/m^3] of a chamber of volume V [m^3] at
     pressure p [Pa], ``1 / (V/B + C_hose)``: its bulk modulus over its volume, plus an
     optional hose compliance C_hose [m^3/Pa]. ``dp/dt = Q_net / (V/B + C_hose)``, where
-    ``Q_net`` includes the piston's displacement flow."""
-    B = effective_bulk_modulus(p, B_eff, air_fraction)
+    ``Q_net`` includes the piston's displacement flow. ``air=False`` promises air_fraction = 0
+    (the kernel's batches without the effect: no powers to compute)."""
+    B = effective_bulk_modulus(p, B_eff, air_fraction, f) if air else B_eff
     return B / (V + C_hose * B)  # = 1 / (V/B + C_hose), with one division
 
 

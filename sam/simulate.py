@@ -1,8 +1,9 @@
 """The batch simulator: many parameter sets, one compiled loop over time.
 
-Each run is advanced by :func:`sam.dynamics.step` (Eq. (22) by default); runs are
-spread over the CPU cores with numba's ``prange``. Only the instants asked for
-are kept, so a batch of 90,000 runs of 4 s at 1 ms fits in memory.
+The runs go in blocks of :data:`sam.dynamics.LANES`, each advanced through time by the one step,
+:func:`sam.dynamics.step_lanes` (Eq. (22) by default), which takes the lanes of a block in one
+vectorised loop; the blocks are spread over the CPU cores with numba's ``prange``. Only the
+instants asked for are kept, so a batch of 90,000 runs of 4 s at 1 ms fits in memory.
 
 Time convention: the state at ``t_k = k dt`` is ``x(k)``; the control ``u[k]``
 and the time-varying parameters of step k act on ``[t_k, t_{k+1})``.
@@ -16,42 +17,63 @@ import numba
 import numpy as np
 
 from .dynamics import (
-    DERIVE_INPUTS, FLAG_CAVITATION, N_DERIVED, N_SCRATCH, N_STATES, SCHEMES, S, areas, derive, step,
+    DERIVE_INPUTS, FLAG_CAVITATION, LANES, N_DERIVED, N_PARAMS, N_STATES, SCHEMES, S, areas, derive_geometry,
+    derive_machine, kernel_variant, step_lanes,
 )
 from .geometry import external_force
 from .params import P
 
+#: The float types the step runs in, by name.
+PRECISIONS = {"float64": np.float64, "float32": np.float32}
 
 # nogil: a caller's other threads (e.g. the GSA runner writing finished chunks) run meanwhile
 @numba.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
 def _simulate_kernel(x0, params, u, tv_cols, tv_vals, rederive, dt, n_steps, record_at, channels, out, flags,
-                     substeps, scheme):
+                     substeps, scheme, leaks, effects, ftype):
     """x0 (n,7); params (n,np); u (1|n, n_steps); tv_vals (1|n, m, n_steps);
-    record_at (n_rec,) sorted step indices in [0, n_steps]; out (n, n_chan, n_rec)."""
+    record_at (n_rec,) sorted step indices in [0, n_steps]; out (n, n_chan, n_rec).
+    Blocks of LANES runs, each advanced in time together; ftype the float type of the step."""
     n = x0.shape[0]
     n_rec = record_at.shape[0]
-    for i in numba.prange(n):
-        s = x0[i].copy()
-        p = params[i].copy()
-        ds = np.empty(N_SCRATCH)
-        d = np.empty(N_DERIVED)
-        derive(p, d)
+    for b in numba.prange((n + LANES - 1) // LANES):
+        lo = b * LANES
+        m = min(LANES, n - lo)
+        s = np.empty((N_STATES, LANES), ftype)
+        p = np.empty((N_PARAMS, LANES), ftype)
+        d = np.empty((N_DERIVED, LANES), ftype)
+        uu = np.empty(LANES, ftype)
+        fl = np.zeros(LANES, np.int64)
+        for j in range(m):
+            for c in range(N_STATES):
+                s[c, j] = x0[lo + j, c]
+            for c in range(N_PARAMS):
+                p[c, j] = params[lo + j, c]
+            derive_geometry(p, d, j)
+            derive_machine(p, d, j)
         # a shared (1, n_steps) input serves every run; int64 keeps numba from promoting to float
-        iu = min(np.int64(i), u.shape[0] - 1)
-        itv = min(np.int64(i), tv_vals.shape[0] - 1)
+        iu = np.int64(u.shape[0] - 1)
+        itv = np.int64(tv_vals.shape[0] - 1)
         r = 0
         for k in range(n_steps + 1):
             while r < n_rec and record_at[r] == k:
                 for c in range(channels.shape[0]):
-                    out[i, c, r] = s[channels[c]]
+                    for j in range(m):
+                        out[lo + j, c, r] = s[channels[c], j]
                 r += 1
             if k == n_steps:
                 break
-            for j in range(tv_cols.shape[0]):
-                p[tv_cols[j]] = tv_vals[itv, j, k]
+            for i in range(tv_cols.shape[0]):
+                for j in range(m):
+                    p[tv_cols[i], j] = tv_vals[min(lo + j, itv), i, k]
             if rederive:
-                derive(p, d)
-            flags[i] |= step(s, u[iu, k], p, d, dt, ds, substeps, scheme)
+                for j in range(m):
+                    derive_geometry(p, d, j)
+                    derive_machine(p, d, j)
+            for j in range(m):
+                uu[j] = u[min(lo + j, iu), k]
+            step_lanes(s, uu, p, d, dt, fl, m, substeps, scheme, leaks, effects)
+        for j in range(m):
+            flags[lo + j] |= fl[j]
 
 
 @dataclass(frozen=True)
@@ -85,6 +107,7 @@ def simulate_batch(
     channels: tuple[str, ...] = tuple(S.__members__),
     substeps: int = 1,
     scheme: str = "euler",
+    precision: str = "float64",
 ) -> BatchResult:
     """Simulate a batch of runs from their parameter vectors.
 
@@ -102,11 +125,16 @@ def simulate_batch(
         substeps: sub-steps of ``dt / substeps`` per step (:func:`sam.dynamics.step`).
         scheme: ``"euler"`` (Eq. (22)), ``"semi_implicit"``, ``"heun"`` or ``"rk4"``
             (:class:`sam.dynamics.Scheme`). The defaults are Eq. (22) at ``dt``.
+        precision: ``"float64"``, or ``"float32"``: the step's arithmetic in single precision,
+            about 1.4x faster (for the GSA, whose indices tolerate it: docs/benchmarks.md). The
+            states returned are float64 either way.
     """
     if scheme not in SCHEMES:
         raise ValueError(f"scheme must be one of {sorted(SCHEMES)}, got {scheme!r}")
     if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
         raise ValueError(f"substeps must be a whole number >= 1, got {substeps!r}")
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
     params = np.ascontiguousarray(np.atleast_2d(params), dtype=np.float64)
     n_runs = params.shape[0]
     u2 = np.ascontiguousarray(np.atleast_2d(u), dtype=np.float64)
@@ -122,10 +150,23 @@ def simulate_batch(
     out = np.empty((n_runs, len(chan_idx), len(record_at)))
     flags = np.zeros(n_runs, dtype=np.int64)
     rederive = bool(DERIVE_INPUTS.intersection(time_varying or {}))
+    leaks, effects = _variant(params, tv_cols, tv_vals)
     _simulate_kernel(x0, params, u2, tv_cols, tv_vals, rederive, float(dt), n_steps, record_at, chan_idx, out, flags,
-                     int(substeps), int(SCHEMES[scheme]))
+                     int(substeps), int(SCHEMES[scheme]), leaks, effects, PRECISIONS[precision])
     states = {c: out[:, j, :] for j, c in enumerate(channels)}
     return BatchResult(record_at * dt, states, (flags & FLAG_CAVITATION) != 0)
+
+
+def _variant(params: np.ndarray, tv_cols: np.ndarray, tv_vals: np.ndarray) -> tuple[bool, bool]:
+    """(leaks, effects) of :func:`sam.dynamics.kernel_variant` over the parameters and the values
+    the time-varying columns take (each of its tests is decided by a column's least and greatest)."""
+    rows = [params]
+    for j, col in enumerate(tv_cols):
+        ends = np.repeat(params[:1], 2, axis=0)
+        ends[:, col] = tv_vals[:, j, :].min(), tv_vals[:, j, :].max()
+        rows.append(ends)
+    leaks, effects = kernel_variant(np.concatenate(rows))
+    return bool(leaks), bool(effects)
 
 
 def _pack_time_varying(time_varying: dict[str, np.ndarray], n_steps: int):

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numba
 from numba import types
+from llvmlite import ir
 from numba.core import cgutils
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
@@ -55,5 +56,33 @@ def matrix(a, i):
 
 @jit_inline
 def whole(a):
-    """The whole C-contiguous 1-D array ``a``, borrowed (work space handed to inlined functions)."""
-    return numba.carray(_item_pointer(a, 0), a.shape[0])
+    """The whole C-contiguous array ``a``, borrowed (work space handed to inlined functions)."""
+    return numba.carray(_item_pointer(a, 0), a.shape)
+
+
+@intrinsic
+def fixed(typingctx, a, rows, cols):
+    """The C-contiguous 2-D array ``a`` as an array of shape (rows, cols), given as integer
+    constants, with no owner: a loop over its columns then indexes its rows at constant strides,
+    which LLVM's vectoriser needs to prove them apart. An intrinsic (no compiled function that
+    returns an array), so that it serves code compiled without reference counting (_nrt=False)."""
+    if not isinstance(a, types.Array) or a.ndim != 2 or a.layout != "C":
+        raise TypingError(f"fixed() needs a C-contiguous 2-D array, got {a}")
+    if not (isinstance(rows, types.IntegerLiteral) and isinstance(cols, types.IntegerLiteral)):
+        raise TypingError(f"fixed() needs its shape as integer constants, got {rows}, {cols}")
+    shape = (rows.literal_value, cols.literal_value)
+    sig = a(a, rows, cols)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        src = context.make_array(aryty)(context, builder, args[0])
+        out = context.make_array(aryty)(context, builder)
+        itemsize = context.get_abi_sizeof(context.get_data_type(aryty.dtype))
+        intp = context.get_value_type(types.intp)
+        context.populate_array(
+            out, data=src.data, shape=[ir.Constant(intp, n) for n in shape],
+            strides=[ir.Constant(intp, shape[1] * itemsize), ir.Constant(intp, itemsize)],
+            itemsize=ir.Constant(intp, itemsize), meminfo=None)
+        return out._getvalue()
+
+    return sig, codegen
