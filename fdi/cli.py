@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import math
+import functools
 from pathlib import Path
 
+from rig.population import tune_recordings
 from sam import load_plant, read_recording
 from sam.errors import UserError, output_folder
 
@@ -13,6 +15,7 @@ from .offline import replay_recording
 from .signatures import signature_table, write_signatures
 from .study import OUTPUT_FILES, StudyDesign, compute_thresholds, write_thresholds
 from .thresholds import SHIPPED_BY_SENSOR, Thresholds, describe
+from .evaluate import evaluate_folder
 from .tune import run_tune
 
 SENSORS = tuple(SHIPPED_BY_SENSOR)
@@ -83,6 +86,11 @@ def add_commands(subparsers) -> None:
                    "cycles; fault runs of 4 s: max(5, N // 5) per fault type and size. Every rate comes with its exact "
                    "95 %% interval; a case can show >= 95 %% only from 72 runs (N >= 360); N = 1000 (200 per case) tells "
                    "a case at 90 %% or at 99 %% apart from 95 %%")
+    t.add_argument("--source", default="rig", choices=("rig", "sam"),
+                   help="what records the runs: rig (default; the rig simulator, rig/population.py's development "
+                        "form: closed and open loops, 20-60 s healthy runs, the machine drawn off its plant file, "
+                        "data the filter's model did not make) or sam (the model's own batched simulator: 20x "
+                        "cheaper, in-model, for comparison)")
     t.add_argument("--workers", type=int, default=1,
                    help="local worker processes (a process pool; --scheduler runs on a dask cluster instead)")
     t.add_argument("--scheduler", help="dask scheduler address, e.g. tcp://host:8786")
@@ -99,6 +107,19 @@ def add_commands(subparsers) -> None:
                    help="overwrite metrics.md, metrics.json, thresholds_used.json, roc.png in a folder that is not "
                    "a tune folder")
     t.set_defaults(func=_tune)
+
+    e = sub.add_parser("evaluate", help="score the detector on a folder of labelled recordings (true_* columns; "
+                       "resumable)")
+    e.add_argument("folder", help="folder of recordings (.csv, .mat) with true_* columns, e.g. from "
+                   "`samfdi rig population`")
+    e.add_argument("--out", required=True, help="output folder: evaluation.md, evaluation.json, evaluation.png and "
+                   "the chunk store (re-run to resume; recordings added later are scored then)")
+    e.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
+    e.add_argument("--thresholds", help="thresholds.toml (default: the shipped one of each recording's position sensor)")
+    e.add_argument("--workers", type=int, default=1, help="local worker processes")
+    e.add_argument("--force", action="store_true", help="overwrite evaluation.* in a folder that is not an "
+                   "evaluation folder")
+    e.set_defaults(func=_evaluate)
 
 
 def _plant(args):
@@ -193,9 +214,10 @@ def _tune(args) -> int:
         raise UserError(f"--runs: need at least 5 runs, got {args.runs}")
     if args.workers < 1:
         raise UserError(f"--workers: must be >= 1, got {args.workers}")
+    recorder = functools.partial(tune_recordings, args.plant, "development") if args.source == "rig" else None
     m = run_tune(_plant(args), Path(args.out), n_runs=args.runs, workers=args.workers, scheduler=args.scheduler,
                  thresholds=_load_thresholds(args.thresholds), reference=args.reference,
-                 bound=args.bound, force=args.force)
+                 bound=args.bound, force=args.force, recorder=recorder, source=args.source)
     print(Path(args.out, "metrics.md").read_text())
     tm = m["timing"]
     if tm["runs_computed"] == 0:  # a re-run of a finished tune: say so rather than "0 runs in 0.0 s"
@@ -206,4 +228,14 @@ def _tune(args) -> int:
               + (f"; {tm['chunks'] - tm['chunks_computed']} of {tm['chunks']} chunks resumed"
                  if tm["chunks_computed"] < tm["chunks"] else ""))
     print(f"wrote {args.out}/metrics.md, metrics.json, thresholds_used.json, roc.png")
+    return 0
+
+
+def _evaluate(args) -> int:
+    if args.workers < 1:
+        raise UserError(f"--workers: must be >= 1, got {args.workers}")
+    evaluate_folder(Path(args.folder), Path(args.out), _plant(args), _load_thresholds(args.thresholds),
+                    workers=args.workers, force=args.force)
+    print(Path(args.out, "evaluation.md").read_text())
+    print(f"wrote {args.out}/evaluation.md, evaluation.json, evaluation.png")
     return 0

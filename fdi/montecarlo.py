@@ -53,6 +53,10 @@ class TuneDesign:
     chunk_runs: int = 25  #: runs per chunk (a chunk is saved as it finishes)
     #: each fault case detected and isolated within ``within_s`` in at least this fraction of runs
     target_rate: float = 0.95
+    #: sizes unbiased: the median relative size error of the isolated runs within +-this
+    size_bias: float = 0.10
+    #: and the truth inside the reported +-2 sigma in at least this fraction of them
+    size_coverage: float = 0.90
     load_bins_kg: tuple = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))  #: load thirds the rates are split by
     #: L/min: edges of the flow a leak passed in its scored second, for isolation by flow
     flow_bins_lpm: tuple = (0.05, 0.1, 0.15, 0.25, 0.5, 1.0)
