@@ -136,10 +136,14 @@ def recordings(folder: Path) -> list[Path]:
     return paths
 
 
-def check_labels(paths: list[Path]) -> None:
-    """Refuse, before any filtering, a recording that cannot be labelled (one line naming it)."""
-    for path in paths:
+def check_recordings(paths: list[Path], plant: Plant, thresholds: Thresholds | None) -> None:
+    """Refuse, before any filtering, a recording that cannot be labelled or that replay would
+    refuse (:func:`fdi.offline.prepare`): one line naming it, so that a long evaluation never
+    stops halfway on a bad file."""
+    for path in paths:  # the labels first: they need no model
         label(read_recording(path), str(path))
+    for path in paths:
+        prepare(read_recording(path), plant, thresholds, plant_name="the plant")
 
 
 def fingerprint(plant: Plant, th: Thresholds | None) -> dict:
@@ -157,7 +161,7 @@ def evaluate_folder(folder: Path, out_dir: Path, plant: Plant, thresholds: Thres
     with ``workers`` local processes. Returns the summary."""
     folder, out_dir = Path(folder), Path(out_dir)
     paths = recordings(folder)
-    check_labels(paths)
+    check_recordings(paths, plant, thresholds)
     output_folder(out_dir, create=False)
     mine = [f for f in OUTPUTS if (out_dir / f).exists()]
     if mine and not force and not (out_dir / "manifest.json").exists():

@@ -49,7 +49,9 @@ class Form:
     ki_V_per_m_s: tuple = (20.0, 60.0)
     dither_share: float = 0.0
     amplitude_V: tuple = (2.0, 4.0)  #: open-loop input amplitude
-    stroke_m: tuple = (0.03, 0.45)  #: the setpoints' range of piston positions
+    #: the start positions' and setpoints' range [m]; inside the SAM's reachable 0.437 m (its joint
+    #: limit theta_max), and never beyond 90 % of a plant's stroke
+    stroke_m: tuple = (0.03, 0.40)
     load_kg: tuple = (0.0, 800.0)
     load_change_share: float = 0.3  #: runs whose load steps to another (healthy runs; fault runs before onset)
     healthy_s: tuple = (20.0, 60.0)  #: length of a healthy run
@@ -113,6 +115,7 @@ def draw_run(plant_path: Path, form: Form, seed: int, i: int, fault=None, size: 
     duration = float(np.round(duration, 3))
     table = {"description": f"{form.name} population run {i}", "plant": str(plant_path), "duration_s": duration,
              "dt_s": 1e-3, "seed": int(rng.integers(1 << 31))}
+    form = dataclasses.replace(form, stroke_m=(form.stroke_m[0], min(form.stroke_m[1], 0.9 * plant.cylinder.x_max)))
     closed = rng.uniform() < form.closed_loop_share
     x0 = float(rng.uniform(*form.stroke_m))
     if closed:

@@ -123,6 +123,13 @@ def test_cli_refuses_bad_folders_in_one_line(tmp_path, capsys):
     assert main(["fdi", "evaluate", str(folder), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert "unlabelled.csv" in err and "no ground truth" in err and len(err.splitlines()) == 1
+    (folder / "unlabelled.csv").unlink()  # what replay refuses is refused before any filtering too
+    high = _recording(3000, true_offset=np.zeros(3000))
+    high.signals["pA"][100] = 30e6
+    write_recording(folder / "over_range.csv", high)
+    assert main(["fdi", "evaluate", str(folder), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "over_range.csv" in err and "'pA'" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()  # refused before any work
 
 
