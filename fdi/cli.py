@@ -117,6 +117,8 @@ def add_commands(subparsers) -> None:
     e.add_argument("--plant", help="plant TOML (default: the shipped SAM)")
     e.add_argument("--thresholds", help="thresholds.toml (default: the shipped one of each recording's position sensor)")
     e.add_argument("--workers", type=int, default=1, help="local worker processes")
+    e.add_argument("--bound", action="store_true", help="also what the data carry at each fault's TRUE onset "
+                   "(fdi/bound.py), to tell misses no detector could avoid from ours; about twice the work")
     e.add_argument("--force", action="store_true", help="overwrite evaluation.* in a folder that is not an "
                    "evaluation folder")
     e.set_defaults(func=_evaluate)
@@ -235,7 +237,7 @@ def _evaluate(args) -> int:
     if args.workers < 1:
         raise UserError(f"--workers: must be >= 1, got {args.workers}")
     evaluate_folder(Path(args.folder), Path(args.out), _plant(args), _load_thresholds(args.thresholds),
-                    workers=args.workers, force=args.force)
+                    workers=args.workers, force=args.force, bound=args.bound)
     print(Path(args.out, "evaluation.md").read_text())
     print(f"wrote {args.out}/evaluation.md, evaluation.json, evaluation.png")
     return 0

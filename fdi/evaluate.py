@@ -25,10 +25,12 @@ from sam import Plant, UserError, read_recording
 from sam.errors import output_folder
 from sam.hydraulics import leak_lpm as leak_lpm_of
 
+from . import bound as onset_bound
 from . import rates
 from .config import FilterConfig
 from .faults import FAULTS
 from .filter import run_filter
+from .isolation import margin_for
 from .metrics import fault_row, healthy_rates, write_json
 from .montecarlo import TUNE
 from .offline import prepare
@@ -96,34 +98,47 @@ def chunk_key(path: Path) -> str:
     return f"{re.sub(r'[^A-Za-z0-9_.+-]', '_', path.stem)}_{stamp(path)}"
 
 
-def score_recording(path: Path, plant: Plant, thresholds: Thresholds | None) -> dict:
+def score_recording(path: Path, plant: Plant, thresholds: Thresholds | None, bound: bool = False) -> dict:
     """One recording's chunk: its label (``fault`` index in FAULTS or -1, ``size``, ``onset_s``),
     and its scores as the tune's chunks hold them (:mod:`fdi.scoring`, one run), with the size
     the bank reports and ``true_size`` in the same unit (L/min at 10 MPa, % of spool travel)."""
     rec = read_recording(path)
     lab = label(rec, str(path))
-    return score(rec, lab, plant, thresholds)
+    return score(rec, lab, plant, thresholds, bound=bound)
 
 
-def score(rec, lab: Label, plant: Plant, thresholds: Thresholds | None) -> dict:
-    """The chunk of a labelled recording ``rec`` (:func:`score_recording`)."""
+def score(rec, lab: Label, plant: Plant, thresholds: Thresholds | None, cfg: FilterConfig | None = None,
+          bound: bool = False) -> dict:
+    """The chunk of a labelled recording ``rec`` (:func:`score_recording`); ``cfg``: the filter
+    (default: the shipped one); ``bound``: also ``evidence``, what the data carry at the true onset
+    (:func:`fdi.bound.onset_evidence`; a healthy run at an onset drawn from its length, seeded)."""
     rec, inp, th, _, _ = prepare(rec, plant, thresholds, plant_name="the plant")
     if abs(th.derived.sample_dt_s / TUNE.dt - 1.0) > 1e-9:
         raise UserError(f"{rec.source}: scored at {1 / TUNE.dt:g} Hz only; thresholds for "
                         f"{1 / th.derived.sample_dt_s:.4g} Hz ({th.derived.source})")
-    out = run_filter(inp, FilterConfig())
+    out = run_filter(inp, FilterConfig() if cfg is None else cfg)
     st = statistics(out, th)
     faulty = lab.fault is not None
     t = rec.t - rec.t[0]
     k0 = np.array([np.searchsorted(t, lab.onset_s - 1e-9) if faulty else len(t)], dtype=np.int64)
     res = window_maxima(st, th, k0)
     res.update(bank_decisions(out, st, th, k0, faulty, size=True))
+    if bound:
+        res["evidence"] = onset_bound.onset_evidence(out, k0 if faulty else healthy_onset(th, len(t), len(t)))
     true = lab.size * (100.0 if lab.fault == "offset" else 1.0)
     res.update({"m_L": np.array([lab.load_kg]), "resets": out.n_cov_reset, "k_onset": k0,
                 "true_size": np.array([true]), "fault": np.array([FAULTS.index(lab.fault) if faulty else -1]),
                 "size": np.array([lab.size]), "onset_s": np.array([lab.onset_s]),
                 "duration_s": np.array([float(t[-1])])})
     return res
+
+
+def healthy_onset(th: Thresholds, n: int, seed: int) -> np.ndarray:
+    """(1,) the sample at which a healthy run of n samples is asked for the bound's evidence: uniform
+    between the end of the own baseline's window and 1 s before the end, seeded by ``seed``."""
+    lo = int(round((th.window.warmup_s + th.window.baseline_s + 1.0) / TUNE.dt))
+    hi = max(lo + 1, n - int(round((TUNE.within_s + 0.1) / TUNE.dt)))
+    return np.random.default_rng(seed).integers(lo, hi, 1)
 
 
 def recordings(folder: Path) -> list[Path]:
@@ -156,9 +171,10 @@ def fingerprint(plant: Plant, th: Thresholds | None) -> dict:
 
 
 def evaluate_folder(folder: Path, out_dir: Path, plant: Plant, thresholds: Thresholds | None = None,
-                    workers: int = 1, progress: bool = True, force: bool = False) -> dict:
+                    workers: int = 1, progress: bool = True, force: bool = False, bound: bool = False) -> dict:
     """Score every recording of ``folder`` into ``out_dir`` (resumable; :func:`summarise`),
-    with ``workers`` local processes. Returns the summary."""
+    with ``workers`` local processes; ``bound``: also what the data carry at the true onset
+    (chunks of their own). Returns the summary."""
     folder, out_dir = Path(folder), Path(out_dir)
     paths = recordings(folder)
     check_recordings(paths, plant, thresholds)
@@ -166,7 +182,7 @@ def evaluate_folder(folder: Path, out_dir: Path, plant: Plant, thresholds: Thres
     mine = [f for f in OUTPUTS if (out_dir / f).exists()]
     if mine and not force and not (out_dir / "manifest.json").exists():
         raise UserError(f"{out_dir}: already holds {', '.join(mine)}; use another --out, or --force to overwrite")
-    tasks = {chunk_key(p): (p, plant, thresholds) for p in paths}
+    tasks = {chunk_key(p) + ("_b" if bound else ""): (p, plant, thresholds, bound) for p in paths}
     chunks = {}
     try:
         with Store.open(out_dir, fingerprint(plant, thresholds), resume=True, layout=LAYOUT) as store:
@@ -204,11 +220,17 @@ def summarise(runs: dict, th: Thresholds) -> dict:
         h = by_case["healthy"]
         out["healthy"] = healthy_rates(h, level)
         out["healthy"]["duration_s"] = [float(h["duration_s"].min()), float(h["duration_s"].max())]
+    bnd = None
+    if "healthy" in by_case and all("evidence" in d for d in by_case.values()):
+        bnd = (onset_bound.threshold(by_case["healthy"]["evidence"], level),
+               margin_for(th.confirmation.false_isolation_level))
+        out["bound"] = {"threshold_nats": bnd[0], "margin_nats": bnd[1], "healthy_runs": out["healthy"]["runs"],
+                        "enough_healthy_runs": onset_bound.enough_healthy_runs(level)}
     rows = []
     for name in sorted((n for n in by_case if n != "healthy"), key=_case_order):
         d = by_case[name]
         fault, size = FAULTS[int(d["fault"][0])], float(d["size"][0])
-        row = fault_row(d, fault, size, None)
+        row = fault_row(d, fault, size, bnd)
         n, before = row["runs"], int(round(row["alarm_before_onset"] * row["runs"]))
         row.update({"alarm_before_onset_runs": before, "alarm_before_onset_ci": list(rates.interval(before, n)),
                     "wrong_ci": list(rates.interval(row["wrong_decisions"], row["decisions_within_1s"]))})
@@ -278,6 +300,19 @@ def markdown(s: dict) -> list:
             f"{r.get('size_error_verdict', '-')} | {_pct(r.get('size_inside_2sigma'))} "
             f"[{_ci(r.get('size_inside_ci', [math.nan] * 2))}] | {r.get('size_inside_verdict', '-')} | "
             + " | ".join(_pct(v) for v in r["isolated_by_load"]) + " |")
+    if "bound" in s:
+        b = s["bound"]
+        lines += ["", "**What the data carry** (`--bound`, fdi/bound.py): a bank started at the TRUE onset, which no "
+                  f"detector knows; 'isolable': its evidence for the true fault beats {b['threshold_nats']:.1f} nats (what "
+                  f"the best fault beats in {100 * s['false_alarm_level']:g} % of the healthy runs, at an onset drawn in "
+                  f"each) and every other fault by {b['margin_nats']:.1f} nats"
+                  + (f"; rough: {b['healthy_runs']} healthy runs, {b['enough_healthy_runs']} wanted" if
+                     b["healthy_runs"] < b["enough_healthy_runs"] else "") + ".", "",
+                  "| fault | size | ours: isolated within 1 s | bound: detectable | bound: isolable [95 %] |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {r['fault']} | {size_text(r['fault'], r['size'])} | {_pct(r['isolated_within_1s'])} | "
+                  f"{_pct(r['bound_detectable'])} | {_pct(r['bound_isolable'])} [{_ci(r['bound_isolable_ci'])}] |"
+                  for r in s["rows"]]
     lines += ["", "'isolated within 1 s': a confirmed alarm at or after the onset and the bank naming the right fault "
               "by 1 s after it. 'wrong isolations': decisions within 1 s that named another fault. Size errors are "
               "relative, over the isolated runs; the size and its +-2 sigma band are the ones `fdi replay` reports."]
@@ -308,9 +343,15 @@ def figure(path: Path, s: dict) -> None:
         x = np.array([r["size"] * (100 if fault == "offset" else 1) for r in rows])
         y = np.array([r["isolated_within_1s"] for r in rows])
         ci = np.array([r["isolated_ci"] for r in rows], dtype=float)
-        shift = {"K_int": -0.006, "K_extA": 0.0, "K_extB": 0.006, "offset": 0.0}[fault]
-        ax.errorbar(x + shift, 100 * y, yerr=100 * np.abs(ci.T - y), color=color, marker=marker, ls="none",
+        shift = {"K_int": 0.96, "K_extA": 1.0, "K_extB": 1.04, "offset": 1.0}[fault]  # apart, on a shared size
+        ax.errorbar(x * shift, 100 * y, yerr=100 * np.abs(ci.T - y), color=color, marker=marker, ls="none",
                     capsize=3, label=f"{fault} (n = {', '.join(str(r['runs']) for r in rows)})")
+    sizes = [abs(r["size"]) * (100 if r["fault"] == "offset" else 1) for r in s["rows"]]
+    if sizes:
+        axes[0].set_xlim(0.0, 1.2 * max([v for r, v in zip(s["rows"], sizes) if r["fault"] != "offset"], default=1.0))
+        top = 1.2 * max([v for r, v in zip(s["rows"], sizes) if r["fault"] == "offset"], default=1.0)
+        axes[1].set_xlim(-top, top)
+    axes[0].set_ylim(-3, 103)
     for ax, unit in zip(axes, ("leak [L/min at 10 MPa]", "offset [% of spool travel]")):
         ax.axhline(100 * s["target_rate"], color="k", ls="--", lw=0.8, label=f"target {100 * s['target_rate']:g} %")
         ax.set_xlabel(unit)
@@ -318,7 +359,11 @@ def figure(path: Path, s: dict) -> None:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("isolated within 1 s of the onset [%] (95 % interval)")
     h = s.get("healthy")
-    title = "fdi evaluate: " + (f"false alarms {h['false_alarms']} of {h['runs']} healthy runs" if h else "no healthy runs")
+    title = "fdi evaluate: " + (f"false alarms {h['false_alarms']} of {h['runs']} healthy runs "
+                                f"[{_ci(h['false_alarm_ci'])} %]" if h else "no healthy runs")
+    if "alarm_before_onset" in s:
+        b = s["alarm_before_onset"]
+        title += f"; alarms before the onset {b['alarms']} of {b['runs']} fault runs"
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=90)

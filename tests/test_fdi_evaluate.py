@@ -182,3 +182,32 @@ def test_population_runs_are_seeded_labelled_and_two_forms_apart(tmp_path):
     assert path.name == "0000_healthy.mat" and evaluate.label(read_recording(path), "h").fault is None
     lo, hi = population.DEVELOPMENT.healthy_s
     assert lo <= read_recording(path).t[-1] <= hi
+
+
+def _sam_recorder(fault, size, n, seed, inputs="standard"):
+    """A stand-in for the rig's recorder: n copies of a shipped sam scenario of the case."""
+    name = "healthy_sine_494kg" if fault is None else "extA_0p5lpm_step"
+    return [run_scenario(load_scenario(ROOT / "scenarios" / "faults" / f"{name}.toml"))] * n
+
+
+@pytest.mark.slow
+def test_a_recorded_tune_chunk_is_scored_as_evaluate_scores_and_gathered(tmp_path):
+    """fdi tune with a recorder (--source rig): each recording of a chunk scored by
+    fdi.evaluate.score, the chunk joined with the tune's keys and the reported sizes, and the
+    tune's metrics row states the sizes; --reference is refused with a recorder, and a folder
+    made from one source is refused for another."""
+    from sam import load_plant
+
+    plant, th = load_plant(), Thresholds.shipped()
+    chunk = tune.recorded_chunk_job(_sam_recorder, plant, th, "K_extA", 0.5, 2, 500_000)
+    assert all(chunk[k].shape[0] == 2 for k in tune.CHUNK_KEYS + tune.BANK_KEYS + ("size_value", "true_size"))
+    job = ("K_extA_0.5", "K_extA", 0.5, 2, 500_000, "standard")
+    cases = tune.gather({tune.chunk_key(job): chunk}, [job])
+    from fdi.metrics import fault_row
+    row = fault_row(cases["K_extA_0.5"], "K_extA", 0.5, None)
+    assert row["isolated_runs"] == 2 and row["sized_runs"] == 2 and abs(row["size_error_median"]) < 0.1
+    with pytest.raises(UserError, match="--source sam only"):
+        tune.run_tune(plant, tmp_path / "t", n_runs=5, recorder=_sam_recorder, source="rig", reference=True,
+                      progress=False)
+    made = tune.fingerprint(plant, th, 5)
+    assert "--source sam there, rig now" in tune._differences(made, tune.fingerprint(plant, th, 5, "rig"))
