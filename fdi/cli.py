@@ -90,7 +90,8 @@ def add_commands(subparsers) -> None:
                    help="what records the runs: rig (default; the rig simulator, rig/population.py's development "
                         "form: closed and open loops, 20-60 s healthy runs, the machine drawn off its plant file, "
                         "data the filter's model did not make) or sam (the model's own batched simulator: 20x "
-                        "cheaper, in-model, for comparison)")
+                        "cheaper, in-model, for comparison). With rig, --runs N gives N + max(5, N // 2) healthy "
+                        "runs of 20-60 s and the fault runs below with their onsets at 4-8 s")
     t.add_argument("--workers", type=int, default=1,
                    help="local worker processes (a process pool; --scheduler runs on a dask cluster instead)")
     t.add_argument("--scheduler", help="dask scheduler address, e.g. tcp://host:8786")
