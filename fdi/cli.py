@@ -1,21 +1,21 @@
-"""``samfdi fdi replay | signatures | tune``."""
+"""``samfdi fdi replay | signatures | thresholds | tune | evaluate``."""
 
 from __future__ import annotations
 
-import math
 import functools
+import math
 from pathlib import Path
 
 from rig.population import tune_recordings
 from sam import load_plant, read_recording
 from sam.errors import UserError, output_folder
 
+from .evaluate import evaluate_folder
 from .recording import CHECKS
 from .offline import replay_recording
 from .signatures import signature_table, write_signatures
 from .study import OUTPUT_FILES, StudyDesign, compute_thresholds, write_thresholds
 from .thresholds import SHIPPED_BY_SENSOR, Thresholds, describe
-from .evaluate import evaluate_folder
 from .tune import run_tune
 
 SENSORS = tuple(SHIPPED_BY_SENSOR)
@@ -89,8 +89,8 @@ def add_commands(subparsers) -> None:
     t.add_argument("--source", default="rig", choices=("rig", "sam"),
                    help="what records the runs: rig (default; the rig simulator, rig/population.py's development "
                         "form: closed and open loops, 20-60 s healthy runs, the machine drawn off its plant file, "
-                        "data the filter's model did not make) or sam (the model's own batched simulator: 20x "
-                        "cheaper, in-model, for comparison). With rig, --runs N gives N + max(5, N // 2) healthy "
+                        "data the filter's model did not make) or sam (the model's own batched simulator: about 3x "
+                        "cheaper per tune, in-model, for comparison). With rig, --runs N gives N + max(5, N // 2) healthy "
                         "runs of 20-60 s and the fault runs below with their onsets at 4-8 s")
     t.add_argument("--workers", type=int, default=1,
                    help="local worker processes (a process pool; --scheduler runs on a dask cluster instead)")
