@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from chunkstore import Store, StoreError, compute
+from chunkstore import MANIFEST, Store, StoreError, compute
 from sam import Plant, UserError, read_recording
 from sam.errors import output_folder
 from sam.hydraulics import leak_lpm as leak_lpm_of
@@ -34,7 +34,7 @@ from .isolation import margin_for
 from .metrics import fault_row, healthy_rates, write_json
 from .montecarlo import TUNE
 from .offline import prepare
-from .scoring import HYP, bank_decisions, window_maxima
+from .scoring import bank_decisions, window_maxima
 from .statistics import statistics
 from .thresholds import Thresholds
 
@@ -113,9 +113,7 @@ def score(rec, lab: Label, plant: Plant, thresholds: Thresholds | None, cfg: Fil
     (default: the shipped one); ``bound``: also ``evidence``, what the data carry at the true onset
     (:func:`fdi.bound.onset_evidence`; a healthy run at an onset drawn from its length, seeded)."""
     rec, inp, th, _, _ = prepare(rec, plant, thresholds, plant_name="the plant")
-    if abs(th.derived.sample_dt_s / TUNE.dt - 1.0) > 1e-9:
-        raise UserError(f"{rec.source}: scored at {1 / TUNE.dt:g} Hz only; thresholds for "
-                        f"{1 / th.derived.sample_dt_s:.4g} Hz ({th.derived.source})")
+    check_rate(th)
     out = run_filter(inp, FilterConfig() if cfg is None else cfg)
     st = statistics(out, th)
     faulty = lab.fault is not None
@@ -131,6 +129,13 @@ def score(rec, lab: Label, plant: Plant, thresholds: Thresholds | None, cfg: Fil
                 "size": np.array([lab.size]), "onset_s": np.array([lab.onset_s]),
                 "duration_s": np.array([float(t[-1])])})
     return res
+
+
+def check_rate(th: Thresholds) -> None:
+    """Refuse thresholds for another rate than the scoring's (its windows count 1 ms samples)."""
+    if abs(th.derived.sample_dt_s / TUNE.dt - 1.0) > 1e-9:
+        raise UserError(f"--thresholds: derived for {1 / th.derived.sample_dt_s:.4g} Hz recordings; fdi evaluate "
+                        f"scores at {1 / TUNE.dt:g} Hz only ({th.derived.source})")
 
 
 def healthy_onset(th: Thresholds, n: int, seed: int) -> np.ndarray:
@@ -177,10 +182,12 @@ def evaluate_folder(folder: Path, out_dir: Path, plant: Plant, thresholds: Thres
     (chunks of their own). Returns the summary."""
     folder, out_dir = Path(folder), Path(out_dir)
     paths = recordings(folder)
+    if thresholds is not None:
+        check_rate(thresholds)
     check_recordings(paths, plant, thresholds)
     output_folder(out_dir, create=False)
     mine = [f for f in OUTPUTS if (out_dir / f).exists()]
-    if mine and not force and not (out_dir / "manifest.json").exists():
+    if mine and not force and not (out_dir / MANIFEST).exists():
         raise UserError(f"{out_dir}: already holds {', '.join(mine)}; use another --out, or --force to overwrite")
     tasks = {chunk_key(p) + ("_b" if bound else ""): (p, plant, thresholds, bound) for p in paths}
     chunks = {}

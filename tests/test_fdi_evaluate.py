@@ -13,7 +13,6 @@ import pytest
 
 from fdi import evaluate, rates, tune
 from fdi.faults import FAULTS
-from fdi.montecarlo import TUNE
 from fdi.thresholds import Thresholds
 from rig import population
 from sam import UserError
