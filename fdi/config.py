@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sam import P
+from sam import P, SCHEMES
 from sam.errors import did_you_mean
 
 from .states import (
@@ -247,8 +247,13 @@ class FilterConfig:
     stops: StopRules = field(default_factory=StopRules)  #: what the filter learns on and near the end stops
     #: V: the input's hold band, |u| at most this: the valve at rest (calibration and stop holds)
     hold_band_V: float = 0.3
+    #: the model's integration scheme in the prediction (sam.SCHEMES), one step per ms: "euler" is
+    #: Eq. (22), which the shipped thresholds were derived with; "heun" the converged estimation
+    #: default of docs/rig.md (1.92x the step's cost; its effect on rig data: docs/fdi.md)
+    model_scheme: str = "euler"
 
     def __post_init__(self):
+        _known(self.model_scheme, tuple(SCHEMES), "model_scheme", "an integration scheme")
         for name in ("process_noise", "initial_sd"):
             table = dict(getattr(self, name))
             object.__setattr__(self, name, table)

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 import numba
 import numpy as np
 
-from sam import P, S, stroke_ends
+from sam import SCHEMES, P, S, stroke_ends
 from sam.geometry import piston_position
 
 from .config import FilterConfig
@@ -230,7 +230,8 @@ def run_filter(inp: FilterInput, cfg: FilterConfig | None = None, z0: np.ndarray
         project_internal=bool(con.project_internal), joint=con.projection == "joint",
         symmetrise=bool(con.symmetrise), nis_alpha=float(min(1.0, inp.dt / g.nis_tau_s) if g.nis_tau_s > 0 else 1.0),
         nis_limit=float(g.nis_factor * 3 if g.nis_factor > 0 else np.inf), jitter=float(g.jitter),
-        max_state=float(g.max_scaled_state), dt=float(inp.dt), n_sub=model_substeps(inp.dt))
+        max_state=float(g.max_scaled_state), dt=float(inp.dt), n_sub=model_substeps(inp.dt),
+        scheme=int(SCHEMES[cfg.model_scheme]))
     # every sample is written by the kernel (NaN after a run's n_steps): no fill here
     res = KernelOutputs(mean=np.empty((B, T, n)), sd=np.empty((B, T, n)), nu=np.empty((B, T, 3)),
                         nis=np.empty((B, T)), ll=np.empty((B, T)), counts=np.zeros((B, 4), dtype=np.int64))

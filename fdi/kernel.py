@@ -61,6 +61,7 @@ KernelArgs = namedtuple("KernelArgs", [
     "max_state",   # largest |scaled state| of a sane mean
     "dt",          # s, sampling step
     "n_sub",       # model steps per sample
+    "scheme",      # the model's integration scheme (sam.Scheme)
 ])
 #: The kernel's outputs, rows in caller order (``slot``).
 KernelOutputs = namedtuple("KernelOutputs", [
@@ -343,6 +344,7 @@ def run(a, o):
     clip_leaks, project_mean, symmetrise, joint = a.clip_leaks, a.project_mean, a.symmetrise, a.joint
     project = a.project_mean and a.project_internal
     nis_alpha, nis_limit, jitter, max_state, dt, n_sub = a.nis_alpha, a.nis_limit, a.jitter, a.max_state, a.dt, a.n_sub
+    scheme = a.scheme
     Qd, Rd, scale, cols, rel = borrow2(a.Qd), whole(a.Rd), whole(a.scale), whole(a.param_cols), whole(a.param_rel)
     gate_group, learn = whole(a.gate_group), whole(a.stop_learn)
     mean, sd, nu_out, nis_out, ll, counts = o.mean, o.sd, o.nu, o.nis, o.ll, o.counts
@@ -382,7 +384,7 @@ def run(a, o):
                          off[b], states, uu, rows)
             na = off[nA]
             for _ in range(n_sub):  # a coarse recording: n_sub model steps per sample, input held
-                step_batch_inplace(states[:na], uu[:na], rows[:na], dt / n_sub, flags[:na])
+                step_batch_inplace(states[:na], uu[:na], rows[:na], dt / n_sub, flags[:na], 1, scheme)
             for b in range(nA):
                 predicted_moments(matrix(sig, b), 2 * n_act[b] + 1, off[b], states, inv_scale, row(Wm, b),
                                   row(Wc, b), Qd, row(matrix(q_gate, b), k), gate_group, dev, row(z, b), matrix(P, b))

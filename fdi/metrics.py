@@ -41,7 +41,7 @@ def analyse(cases: dict, th: Thresholds) -> dict:
     healthy = cases["healthy"]
     hmax = healthy["max"][:, :, 2].max(axis=1)  # per run: max over hypotheses of g/h
     level = th.derived.false_alarm_level
-    fa = _healthy_rates(healthy, level)
+    fa = healthy_rates(healthy, level)
     scales = np.geomspace(0.25, 4, 17)
     roc = {"scale": scales.tolist(), "false_alarm": [float((hmax > s).mean()) for s in scales], "detection": {}}
     has_bound = "evidence" in healthy
@@ -53,7 +53,7 @@ def analyse(cases: dict, th: Thresholds) -> dict:
         for size in sizes:
             name = f"{fault}_{size:g}"
             d = cases[name]
-            rows.append(_fault_row(d, fault, size, bnd))
+            rows.append(fault_row(d, fault, size, bnd))
             ok_pre = d["max"][:, :, 0].max(axis=1)
             post = d["max"][:, :, 1].max(axis=1)
             roc["detection"][name] = [float(((post > s) & (ok_pre <= s)).mean()) for s in scales]
@@ -74,7 +74,7 @@ def analyse(cases: dict, th: Thresholds) -> dict:
     if flows:
         metrics["flow_bins_lpm"], metrics["isolated_by_flow"] = TUNE.flow_bins_lpm, flows
     if "healthy_long" in cases:
-        long = _healthy_rates(cases["healthy_long"], level)
+        long = healthy_rates(cases["healthy_long"], level)
         metrics["long_cycles"] = long
         k, n = fa["false_alarms"] + long["false_alarms"], fa["runs"] + long["runs"]
         metrics["all_healthy"] = {"runs": n, "false_alarm_rate": k / n, **_false_alarm_count(k, n, level)}
@@ -92,7 +92,7 @@ def write_report(out_dir: Path, metrics: dict, th: Thresholds, reference: bool =
     rates_figure(Path(out_dir) / "rates.png", metrics, th.derived.false_alarm_level, TUNE.target_rate, rates.interval)
 
 
-def _healthy_rates(d: dict, level: float) -> dict:
+def healthy_rates(d: dict, level: float) -> dict:
     """The false-alarm figures of loaded healthy chunks ``d``: runs, false-alarm rate (runs with an
     alarm that stood: the bank confirmed it, when the chunks have the bank's verdicts; else any
     alarm), its :func:`fdi.rates.interval` and :func:`fdi.rates.verdict` against the stated
@@ -115,7 +115,7 @@ def _false_alarm_count(k: int, n: int, level: float) -> dict:
             "false_alarm_verdict": rates.verdict(k, n, level, at_least=False)}
 
 
-def _fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
+def fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
     """The metrics.json row of one fault case from its loaded chunks ``d``; ``bnd``: the bound's
     (threshold, margin) [nats] or None. 'wrong_isolation' = fraction of the decisions taken within
     1 s of the onset (the bank's) that named another fault hypothesis: the rate the stated
@@ -149,12 +149,31 @@ def _fault_row(d: dict, fault: str, size: float, bnd: tuple | None) -> dict:
     if "leak_flow_lpm" in d:  # leak runs only: an offset passes no flow
         row["leak_flow_median_lpm"] = float(np.median(d["leak_flow_lpm"]))
         row["isolated_by_flow"] = _by_flow(isolated, d["leak_flow_lpm"])
+    if "size_value" in d:
+        row.update(size_scores(d, isolated))
     if bnd is not None:
         ok, iso = onset_bound.verdicts(d["evidence"], fault, *bnd)
         row.update({"bound_detectable": float(ok.mean()), "bound_isolable": float(iso.mean()),
                     "bound_isolable_ci": list(rates.interval(iso.sum(), len(iso))),
                     "bound_median_nats": float(np.median(d["evidence"][:, onset_bound.HYPOTHESES.index(fault)]))})
     return row
+
+
+def size_scores(d: dict, isolated: np.ndarray) -> dict:
+    """The size figures of a case's isolated runs (``d``: ``size_value``, ``size_lo``, ``size_hi``
+    as reported and ``true_size``, in one unit): the median relative error with its interval and
+    verdict (within +-TUNE.size_bias) and the fraction whose truth lies inside the reported +-2
+    sigma with its interval and verdict (>= TUNE.size_coverage)."""
+    sized = isolated & np.isfinite(d["size_value"])
+    true = d["true_size"][sized]
+    err = d["size_value"][sized] / true - 1.0
+    inside = (d["size_lo"][sized] <= true) & (true <= d["size_hi"][sized])
+    ci = rates.median_interval(err)
+    n, k = int(sized.sum()), int(inside.sum())
+    return {"sized_runs": n, "size_error_median": float(np.median(err)) if n else float("nan"),
+            "size_error_ci": list(ci), "size_error_verdict": rates.within(ci, -TUNE.size_bias, TUNE.size_bias),
+            "size_inside_2sigma": k / n if n else float("nan"), "size_inside_ci": list(rates.interval(k, n)),
+            "size_inside_verdict": rates.verdict(k, n, TUNE.size_coverage)}
 
 
 def _by_flow(isolated: np.ndarray, flow_lpm: np.ndarray) -> list:
@@ -235,6 +254,10 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
     wr = m["wrong_isolation_rate"]
     lines = ["# FDI tuning metrics", "",
              f"Thresholds: {th.derived.source} (not fitted to these runs).", "",
+             *([] if m.get("source", "sam") == "sam" else
+               [f"Runs recorded by the {m['source']} (`--source {m['source']}`), each scored as `fdi evaluate` scores "
+                "a labelled recording: healthy runs of 20-60 s, fault runs with onsets at 4-8 s (the texts on inputs "
+                "and onsets below are the sam runs'; rig/population.py says how the runs are drawn).", ""]),
              f"Position sensor: {th.derived.position_sensor} ({POSITION_SENSOR_TEXT[th.derived.position_sensor]}), as the "
              "thresholds were derived for.", "",
              *([f"Every machine was first calibrated on a healthy {TUNE.reference_s:g} s reference recording of its own (another "
@@ -263,12 +286,18 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
     cols = ["fault", "size", "runs", "within 1 s", "isolated", f"isolated: {rates.LEVEL * 100:g} % interval",
             f"vs {TUNE.target_rate * 100:g} %",
             "wrong isolation", "alarm before onset", "mean delay [s]", *(f"isolated {b}" for b in bins)]
+    sized = all("size_error_median" in r for r in m["rows"])
+    if sized:
+        cols += ["median size error [%]", "its interval", "truth inside +-2 sigma", "its interval"]
     lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in m["rows"]:
         cells = [r["fault"], _row_size(r), str(r["runs"]), _f2(r["detected_within_1s"]), _f2(r["isolated_within_1s"]),
                  _interval_text(r["isolated_ci"]), r["isolated_verdict"],
                  _f2(r["wrong_isolation"]),
                  _f2(r["alarm_before_onset"]), _f2(r["mean_delay_s"]), *(_f2(v) for v in r["isolated_by_load"])]
+        if sized:
+            cells += [_f2(100 * r["size_error_median"], 1), _interval_text([100 * v for v in r["size_error_ci"]], 1),
+                      _f2(r["size_inside_2sigma"]), _interval_text(r["size_inside_ci"])]
         lines.append("| " + " | ".join(cells) + " |")
     smallest, by_load = m["smallest_detected_and_isolated_95pct_within_1s"], \
         m["smallest_detected_and_isolated_95pct_within_1s_by_load"]
@@ -288,7 +317,7 @@ def _markdown(m: dict, th: Thresholds, reference: bool) -> list:
 
 def _healthy_line(r: dict, th: Thresholds, bins: list) -> str:
     """metrics.md's words for the false-alarm figures ``r`` of a healthy population
-    (:func:`_healthy_rates`: ``runs``, ``false_alarm_rate``, ``false_alarm_by_load``, ``trigger_rate``)."""
+    (:func:`healthy_rates`: ``runs``, ``false_alarm_rate``, ``false_alarm_by_load``, ``trigger_rate``)."""
     return (f"{r['runs']} x {th.derived.run_length_s:g} s; false-alarm rate (any alarm "
             f"{'that the bank confirmed ' if th.confirmation.confirm_nats > 0 else ''}per run): "
             f"{_false_alarm_text(r, th)}; by load " + ", ".join(f"{b}: {_f2(v, 3)}"

@@ -53,6 +53,10 @@ class TuneDesign:
     chunk_runs: int = 25  #: runs per chunk (a chunk is saved as it finishes)
     #: each fault case detected and isolated within ``within_s`` in at least this fraction of runs
     target_rate: float = 0.95
+    #: sizes unbiased: the median relative size error of the isolated runs within +-this
+    size_bias: float = 0.10
+    #: and the truth inside the reported +-2 sigma in at least this fraction of them
+    size_coverage: float = 0.90
     load_bins_kg: tuple = ((0.0, 267.0), (267.0, 534.0), (534.0, 800.1))  #: load thirds the rates are split by
     #: L/min: edges of the flow a leak passed in its scored second, for isolation by flow
     flow_bins_lpm: tuple = (0.05, 0.1, 0.15, 0.25, 0.5, 1.0)
@@ -68,8 +72,11 @@ class TuneDesign:
                              f"within_s] = (0, {self.fault_run_s - self.within_s:g}] s, the scored second in the run")
         if isinstance(self.chunk_runs, bool) or not isinstance(self.chunk_runs, int) or self.chunk_runs < 1:
             raise ValueError(f"TuneDesign.chunk_runs = {self.chunk_runs!r}: must be a whole number >= 1")
-        if not 0 < self.target_rate < 1:
-            raise ValueError(f"TuneDesign.target_rate = {self.target_rate!r}: must be a fraction of runs in (0, 1)")
+        for name in ("target_rate", "size_coverage"):
+            if not 0 < getattr(self, name) < 1:
+                raise ValueError(f"TuneDesign.{name} = {getattr(self, name)!r}: must be a fraction of runs in (0, 1)")
+        if not 0 < self.size_bias < math.inf:
+            raise ValueError(f"TuneDesign.size_bias = {self.size_bias!r}: must be a relative size error > 0")
         for fault, sizes in self.fault_sizes.items():
             if fault not in FAULTS or not sizes or any(s == 0 for s in sizes):
                 raise ValueError(f"TuneDesign.fault_sizes[{fault!r}] = {sizes!r}: must be non-zero sizes of one of "

@@ -79,6 +79,24 @@ def reference_baseline(ref: Recording, plant: Plant, th: Thresholds, cfg: Filter
     return np.array([base])
 
 
+def prepare(rec: Recording, plant: Plant, thresholds: Thresholds | None = None, *, drop_out_of_range: bool = False,
+            own_baseline: bool = True, plant_name: str = "plant", position_sensor: str | None = None) -> tuple:
+    """A recording checked and made the filter's input, as :func:`replay` takes it: (the measured
+    recording at the thresholds' rate, :class:`fdi.filter.FilterInput`, the thresholds (None: the
+    shipped file of the position sensor), the position sensor, the input's health report). Every
+    refusal is a UserError naming the recording."""
+    sensor = position_sensor or detect_position_sensor(rec, plant)
+    thresholds = Thresholds.shipped(sensor) if thresholds is None else thresholds
+    rec, k = at_thresholds_rate(rec.measured(), thresholds)  # never the true_* columns
+    inp, report = filter_input(rec, plant, drop_out_of_range=drop_out_of_range, position_sensor=sensor)
+    health = report.to_dict()
+    if k > 1:
+        health["decimated_by"] = k
+    check_duration(rec, thresholds, own_baseline=own_baseline)
+    check_observable(inp, plant, plant_name, str(rec.source or "the recording"))
+    return rec, inp, thresholds, sensor, health
+
+
 def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None, thresholds: Thresholds | None = None,
            drop_out_of_range: bool = False, baseline: Recording | np.ndarray | None = None,
            reference: Recording | None = None, plant_name: str = "plant", position_sensor: str | None = None,
@@ -95,21 +113,15 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None, thr
     (for a fault present from the start), or (1, 4) baseline values; default: the recording's own
     estimates over its baseline window. ``plant_name``: how messages name the plant; ``design``:
     the likelihood bank's (:class:`fdi.bank.BankDesign`)."""
-    sensor = position_sensor or detect_position_sensor(rec, plant)
-    thresholds = Thresholds.shipped(sensor) if thresholds is None else thresholds
     cfg = FilterConfig() if cfg is None else cfg
-    rec, k = at_thresholds_rate(rec.measured(), thresholds)  # never the true_* columns
-    inp, report = filter_input(rec, plant, drop_out_of_range=drop_out_of_range, position_sensor=sensor)
-    health = report.to_dict()
-    if k > 1:
-        health["decimated_by"] = k
-    check_duration(rec, thresholds, own_baseline=baseline is None)
+    rec, inp, thresholds, sensor, health = prepare(rec, plant, thresholds, drop_out_of_range=drop_out_of_range,
+                                                   own_baseline=baseline is None, plant_name=plant_name,
+                                                   position_sensor=position_sensor)
     # a healthy recording of the machine is held to what replay asks of any recording
     given = {"--reference": reference, "--baseline": baseline if isinstance(baseline, Recording) else None}
     given = {role: at_thresholds_rate(r, thresholds)[0] for role, r in given.items() if r is not None}
     for role, r in given.items():
         check_duration(r, thresholds, own_baseline=True, role=role)
-    check_observable(inp, plant, plant_name, str(rec.source or "the recording"))
     cal = None
     if "--reference" in given:
         cal = learn_reference(given["--reference"], plant, cfg, drop_out_of_range=drop_out_of_range)

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import math
 
-from scipy.stats import binomtest
+import numpy as np
+from scipy.stats import binomtest, quantile_test
 
 #: two-sided confidence level of the intervals: each end is a one-sided 97.5 % bound
 LEVEL = 0.95
@@ -47,3 +48,26 @@ def runs_to_show(target: float, level: float = LEVEL) -> int:
     Monte Carlo cannot show a rate of ``target`` even when every run passes. (k = n: the low end is
     ((1 - level) / 2) ** (1 / n).)"""
     return math.ceil(math.log((1.0 - level) / 2.0) / math.log(target))
+
+
+def median_interval(x, level: float = LEVEL) -> tuple[float, float]:
+    """(low, high): the distribution-free ``level`` confidence interval of the median of the
+    samples ``x`` (order statistics, ``scipy.stats.quantile_test``); (NaN, NaN) where too few
+    samples bound it (fewer than 6 at 95 %)."""
+    x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
+    if len(x) == 0:
+        return math.nan, math.nan
+    ci = quantile_test(x, q=float(np.median(x)), p=0.5).confidence_interval(confidence_level=level)
+    return float(ci.low), float(ci.high)
+
+
+def within(ci: tuple[float, float], low: float, high: float) -> str:
+    """Whether a quantity with the interval ``ci`` lies within [low, high]: 'met' when the whole
+    interval does, 'not met' when it lies wholly outside, 'undecided' otherwise (and for NaN)."""
+    lo, hi = ci
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return "undecided"
+    if low <= lo and hi <= high:
+        return "met"
+    return "not met" if hi < low or lo > high else "undecided"

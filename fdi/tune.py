@@ -30,17 +30,15 @@ from sam.errors import output_folder
 
 from . import bound as onset_bound
 from . import calibration
+from . import evaluate
 from .config import FilterConfig
-from .diagnosis import judge
-from .faults import HYPOTHESES, hypothesis_name
 from .filter import run_filter
 from .metrics import analyse, write_report
 from .montecarlo import LEAKS, TUNE, leak_flow_lpm, make_batch, make_reference_batch
-from .alarms import first_alarms
-from .statistics import Statistics, statistics
+from .scoring import BANK_KEYS, HYP, SIZE_KEYS, bank_decisions, window_maxima  # noqa: F401 (HYP: the chunks' columns)
+from .statistics import statistics
 from .thresholds import Thresholds
 
-HYP = tuple(HYPOTHESES)
 #: the layout of the chunks (their keys and what made them): in the fingerprint and every key
 CHUNK_VERSION = "x"
 #: what a tune writes besides the store: in a folder that is not a tune folder these are the
@@ -51,8 +49,6 @@ LAYOUT = {"chunks": "<case>_<seed>_<mode>.npz: per run of the chunk (fdi.tune.ch
           "mode": "x, then c with --reference, b with --bound"}
 #: chunk keys every mode writes
 CHUNK_KEYS = ("first", "max", "m_L", "k_onset")
-#: chunk keys of the bank's verdicts (:func:`bank_decisions`)
-BANK_KEYS = ("iso_h", "iso_k", "conf_k", "n_withdrawn")
 
 
 def draw_onsets(n: int, seed: int) -> np.ndarray:
@@ -95,73 +91,31 @@ def chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, inputs: str = 
     return res
 
 
-def timed_chunk_job(*args) -> dict:
-    """:func:`chunk_job` with the seconds it took (``compute_s``, a worker's wall time), kept in
-    the chunk so that a resumed tune can state the cost of all its runs, not only of the last part."""
+def timed_chunk_job(job, *args) -> dict:
+    """``job(*args)`` (:func:`chunk_job` or :func:`recorded_chunk_job`) with the seconds it took
+    (``compute_s``, a worker's wall time), kept in the chunk so that a resumed tune can state the
+    cost of all its runs, not only of the last part."""
     t0 = time.perf_counter()
-    res = chunk_job(*args)
+    res = job(*args)
     return {**res, "compute_s": np.float64(time.perf_counter() - t0)}
+
+
+def recorded_chunk_job(recorder, plant: Plant, th: Thresholds, fault, size, n, seed, inputs: str = "standard"):
+    """A chunk of runs that ``recorder`` records (another simulator, e.g. the rig), each scored as
+    ``fdi evaluate`` scores a labelled recording (:func:`fdi.evaluate.score`): the keys of
+    :func:`chunk_job` and the reported size. ``recorder(fault, size, n, seed, inputs)``: n
+    recordings with ``true_*`` columns, the fault (None: healthy) of ``size`` (leaks in L/min at
+    10 MPa, the offset a fraction) stepping in at an onset of the recorder's own choosing."""
+    parts = []
+    for i, rec in enumerate(recorder(fault, size, n, seed, inputs)):
+        parts.append(evaluate.score(rec, evaluate.label(rec, f"run {i} of chunk {seed}"), plant, th))
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
 def run_seconds(th: Thresholds, fault) -> float:
     """Length [s] of a tune run: TUNE.fault_run_s for fault runs, the thresholds' run_length_s (the
     run their false-alarm level is stated for) for healthy ones."""
     return TUNE.fault_run_s if fault is not None else th.derived.run_length_s
-
-
-def window_maxima(st: Statistics, th: Thresholds, k0: np.ndarray) -> dict:
-    """Per run b and hypothesis: the first alarm index (-1: none) and the maxima of g/h over
-    [0, k0[b]), [k0[b], k0[b] + 1 s] and the whole run."""
-    k0 = np.asarray(k0, dtype=np.int64)
-    n = len(k0)
-    idx = np.arange(next(iter(st.values())).shape[1])
-    pre = idx[None, :] < k0[:, None]
-    post = (idx[None, :] >= k0[:, None]) & (idx[None, :] <= k0[:, None] + int(round(TUNE.within_s / TUNE.dt)))
-    first = np.full((n, len(HYP)), -1, dtype=np.int64)
-    mx = np.zeros((n, len(HYP), 3))
-    for i, h in enumerate(HYP):
-        if h not in st:  # no statistic: never alarms
-            continue
-        r = st[h] / th.test.h[h]
-        above = r > 1.0
-        first[:, i] = np.where(above.any(axis=1), np.argmax(above, axis=1), -1)
-        mx[:, i, 0] = np.where(pre, r, -np.inf).max(axis=1)
-        mx[:, i, 1] = np.where(post, r, -np.inf).max(axis=1)
-        mx[:, i, 2] = r.max(axis=1)
-    return {"first": first, "max": mx}
-
-
-def bank_decisions(out, st: Statistics, th: Thresholds, k_onset: np.ndarray, faulty: bool) -> dict:
-    """The bank's verdicts, per run: the isolated hypothesis (index in HYP, -1: none or not
-    isolable), the sample of the decision (-1: none), the first alarm that stood (-1: none; in a
-    fault run a first alarm after the scored second is not judged and counts as it stands) and
-    the number of withdrawn alarms.
-
-    Every alarmed run is judged as replay judges it (:func:`fdi.diagnosis.judge`). Fault runs
-    are cut at the scored second's end (a decision is causal, so the cut changes no decision
-    that counts, and the bank costs a third). The several-faults stage is not run: its verdict
-    comes after the scored second."""
-    n = out.mean.shape[0]
-    res = {key: np.full(n, -1, dtype=np.int64) for key in ("iso_h", "iso_k", "conf_k")}
-    res["n_withdrawn"] = np.zeros(n, dtype=np.int64)
-    k_end = np.asarray(k_onset, dtype=np.int64) + int(round(TUNE.within_s / TUNE.dt))
-    k_alarm = first_alarms(st, th.test.h)[0]
-    # a fault run whose first alarm comes after onset + 1 s cannot count within 1 s: not judged
-    # (the bank would cost for nothing), its alarm taken as it stands (for the mean delay)
-    late = faulty & (k_alarm > k_end)
-    res["conf_k"][late] = k_alarm[late]
-    rows = np.flatnonzero((k_alarm >= 0) & ~late)
-    if not len(rows):
-        return res
-    decs = judge(out, th, st, rows=rows, k_stop=k_end[rows] + 1 if faulty else None, size=False, pairs=False)
-    for b, d in decs.items():
-        res["n_withdrawn"][b] = len(d.withdrawn)
-        if d.standing.confirmed:
-            res["conf_k"][b] = d.standing.alarm
-        if d.naming.hypothesis is not None:
-            res["iso_h"][b] = HYP.index(hypothesis_name(d.naming.hypothesis, d.naming.size))
-            res["iso_k"][b] = d.naming.index
-    return res
 
 
 def jobs_of(n_runs: int) -> list:
@@ -190,7 +144,7 @@ def long_cycle_runs(n_runs: int) -> int:
 
 def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, scheduler: str | None = None,
              progress: bool = True, thresholds: Thresholds | None = None, reference: bool = False,
-             bound: bool = False, force: bool = False) -> dict:
+             bound: bool = False, force: bool = False, recorder=None, source: str = "sam") -> dict:
     """The Monte Carlo of ``n_runs`` healthy runs (and the fault runs of :func:`jobs_of`) on the
     ``plant`` with ``thresholds`` (default: the shipped ones) into ``out_dir`` (resumable), with a
     progress bar if ``progress``; ``reference``: every machine calibrated on a
@@ -199,6 +153,9 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
     ``force``: overwrite the files a tune writes in a folder that is not a tune folder.
     ``workers`` > 1: a local process pool (spawned: a calling script needs
     ``if __name__ == "__main__":``); ``scheduler``: a dask.distributed cluster instead.
+    ``recorder``: None, runs of ``sam``'s batched simulator (:func:`fdi.montecarlo.make_batch`);
+    else recordings of another simulator, named ``source`` (:func:`recorded_chunk_job`; the CLI's
+    ``--source rig`` gives the rig's, ``rig.population.tune_recordings``), each scored with its size.
     Every refusal (``out_dir`` not a writable folder, made with other settings, holding the
     user's files, another run writing into it) is a UserError raised before any computing."""
     out_dir = Path(out_dir)
@@ -207,8 +164,10 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
     if abs(dt / TUNE.dt - 1.0) > 1e-9:
         raise UserError(f"--thresholds: derived for {1 / dt:.4g} Hz recordings; the tune simulates and "
                         f"filters at {1 / TUNE.dt:g} Hz only ({th.derived.source})")
+    if recorder is not None and (reference or bound):
+        raise UserError(f"--reference and --bound: with --source sam only (the {source} has no batched reference runs)")
     jobs = jobs_of(n_runs)
-    want = fingerprint(plant, th, n_runs)
+    want = fingerprint(plant, th, n_runs, None if recorder is None else source)
     output_folder(out_dir, create=False)  # created by the store: a refused run leaves nothing behind
     _check_folder(out_dir, want, force)
     if scheduler:
@@ -217,19 +176,23 @@ def run_tune(plant: Plant, out_dir: Path, n_runs: int = 100, workers: int = 1, s
         with Store.open(out_dir, want, resume=True, layout=LAYOUT) as store:
             (out_dir / "thresholds_used.json").write_text(th.to_json() + "\n")
             cases, timing = compute_chunks(store, plant, th, jobs, mode_tag(reference, bound), workers=workers,
-                                           scheduler=scheduler, progress=progress, reference=reference, bound=bound)
-            return summarise(out_dir, cases, th, reference, timing)
+                                           scheduler=scheduler, progress=progress, reference=reference, bound=bound,
+                                           recorder=recorder)
+            return summarise(out_dir, cases, th, reference, timing, source)
     except StoreError as exc:
         raise UserError(str(exc)) from None
 
 
 def compute_chunks(store: Store, plant: Plant, th: Thresholds, jobs: list, tag: str, *, workers: int = 1,
                    scheduler: str | None = None, progress: bool = False, reference: bool = False,
-                   bound: bool = False) -> tuple[dict, dict]:
+                   bound: bool = False, recorder=None) -> tuple[dict, dict]:
     """Every chunk of ``jobs`` in mode ``tag`` from ``store``, the missing ones computed (on
     ``scheduler``, ``workers`` local processes, or here) and saved as each finishes: (case name ->
     its runs' arrays in job order (:func:`gather`), the timing (:func:`timing`))."""
-    tasks = {chunk_key(j, tag): (plant, th, *j[1:], reference, bound) for j in jobs}
+    if recorder is None:
+        tasks = {chunk_key(j, tag): (chunk_job, plant, th, *j[1:], reference, bound) for j in jobs}
+    else:
+        tasks = {chunk_key(j, tag): (recorded_chunk_job, recorder, plant, th, *j[1:]) for j in jobs}
     sizes = {chunk_key(j, tag): j[3] for j in jobs}
     executor = "dask" if scheduler else "processes" if workers > 1 else "inline"
     chunks, computed = {}, []
@@ -272,14 +235,15 @@ def timing_text(tm: dict) -> str:
             f"were resumed from the store); all {tm['runs']} runs: {total}")
 
 
-def fingerprint(plant: Plant, th: Thresholds, n_runs: int) -> dict:
+def fingerprint(plant: Plant, th: Thresholds, n_runs: int, source: str | None = None) -> dict:
     """What a tune folder's chunks depend on besides their job and mode: the chunk layout, the
-    run count (it sets the chunks' sizes and the fault runs per case) and hashes (sha256) of the
-    thresholds as JSON and of the plant vector (float64 bytes)."""
+    run count (it sets the chunks' sizes and the fault runs per case), hashes (sha256) of the
+    thresholds as JSON and of the plant vector (float64 bytes), and the runs' ``source`` when it
+    is not sam's batched simulator."""
     vec = np.ascontiguousarray(plant.vector(), dtype=np.float64)
     return {"job": "fdi tune", "layout": CHUNK_VERSION, "runs": int(n_runs),
             "thresholds_sha256": hashlib.sha256(th.to_json().encode()).hexdigest(),
-            "plant_sha256": hashlib.sha256(vec.tobytes()).hexdigest()}
+            "plant_sha256": hashlib.sha256(vec.tobytes()).hexdigest(), **({"source": source} if source else {})}
 
 
 def _differences(old: dict, new: dict) -> list:
@@ -292,6 +256,8 @@ def _differences(old: dict, new: dict) -> list:
                    "thresholds have other fields)")
     if old.get("plant_sha256") != new["plant_sha256"]:
         out.append("another plant (--plant)")
+    if old.get("source", "sam") != new.get("source", "sam"):
+        out.append(f"--source {old.get('source', 'sam')} there, {new.get('source', 'sam')} now")
     if old.get("layout") != new["layout"]:
         out.append(f"chunk layout {old.get('layout')!r} there (another samfdi version), {new['layout']!r} now")
     return out
@@ -349,16 +315,19 @@ def gather(chunks: dict, jobs: list, tag: str = CHUNK_VERSION) -> dict:
     cases = {}
     for name in dict.fromkeys(j[0] for j in jobs):
         parts = [chunks[chunk_key(j, tag)] for j in jobs if j[0] == name]
-        keys = CHUNK_KEYS + BANK_KEYS + tuple(k for k in ("evidence", "leak_flow_lpm") if all(k in p for p in parts))
+        keys = CHUNK_KEYS + BANK_KEYS + tuple(k for k in ("evidence", "leak_flow_lpm", *SIZE_KEYS, "true_size")
+                                              if all(k in p for p in parts))
         cases[name] = {k: np.concatenate([p[k] for p in parts]) for k in keys}
     return cases
 
 
-def summarise(out_dir: Path, cases: dict, th: Thresholds, reference: bool = False, timing: dict | None = None) -> dict:
+def summarise(out_dir: Path, cases: dict, th: Thresholds, reference: bool = False, timing: dict | None = None,
+              source: str = "sam") -> dict:
     """The metrics of ``cases`` (:func:`gather`; :func:`fdi.metrics.analyse`), written into
     ``out_dir`` as metrics.json, metrics.md and rates.png; ``timing``: this run's, if it computed."""
     metrics = analyse(cases, th)
     metrics["reference"] = reference
+    metrics["source"] = source
     if timing is not None:
         metrics["timing"] = timing
     write_report(out_dir, metrics, th, reference)

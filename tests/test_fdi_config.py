@@ -37,6 +37,9 @@ def test_every_knob_of_the_designs_is_documented(cls):
     (lambda: FilterConfig(sigma_points=SigmaPoints(alpha=0.0)), r"sigma_points\.alpha"),
     (lambda: FilterConfig(calibration=CalibrationStates(states=("m_L", "m_L"))), r"names a parameter twice"),
     (lambda: FilterConfig().with_process_noise(K_itn=1e-9), r"K_itn"),
+    (lambda: FilterConfig(model_scheme="heum"), r"model_scheme: 'heum' is not an integration scheme.*'heun'"),
+    (lambda: TuneDesign(size_coverage=0.0), r"TuneDesign\.size_coverage = 0\.0: must be a fraction of runs"),
+    (lambda: TuneDesign(size_bias=-0.1), r"TuneDesign\.size_bias = -0\.1: must be a relative size error > 0"),
 ])
 def test_a_wrong_setting_is_refused_where_it_is_made(make, message):
     with pytest.raises(ValueError, match=message):

@@ -61,7 +61,7 @@ def calls(monkeypatch):
 
 def _tune(out: Path, *extra: str) -> int:
     """The tune command in this process (one worker), where the fake Monte Carlo is patched in."""
-    return main(["fdi", "tune", "--runs", str(N_RUNS), "--workers", "1", "--out", str(out), *extra])
+    return main(["fdi", "tune", "--source", "sam", "--runs", str(N_RUNS), "--workers", "1", "--out", str(out), *extra])
 
 
 def test_resume_refuses_a_folder_made_with_other_settings(tmp_path, calls, capsys):
@@ -82,7 +82,7 @@ def test_resume_refuses_a_folder_made_with_other_settings(tmp_path, calls, capsy
     assert json.loads((out / "metrics.json").read_text())["rows"] == before
     assert f"nothing to compute: all {n_jobs} chunks were already in" in capsys.readouterr().out
 
-    assert main(["fdi", "tune", "--runs", "40", "--workers", "1", "--out", str(out)]) == 2
+    assert main(["fdi", "tune", "--source", "sam", "--runs", "40", "--workers", "1", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert str(out) in err and f"--runs {N_RUNS} there, 40 now" in err and "another --out" in err
     assert len(err.splitlines()) == 1

@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 #: option -> the value CI runs it with, replacing the README's; per subcommand, options added when
 #: the subcommand has them (their defaults are the expensive part)
-REDUCED = {"--runs": "5", "--n": "128"}
+REDUCED = {"--runs": "5", "--n": "128", "--healthy": "2", "--per-case": "1"}
 ADDED = {("fdi", "thresholds"): {"--n-leak": "4", "--n-nuisance": "8"},
          ("gsa", "reconstruct"): {"--n": "128", "--bootstrap": "40"}}
 
