@@ -104,6 +104,27 @@ def test_fault_and_load_profiles_reach_the_model(tmp_path):
     assert np.array_equal(rec.truth["true_pA"][rec.t < 1.0], healthy.truth["true_pA"][healthy.t < 1.0])
 
 
+@pytest.mark.parametrize("load_kg", [0.0, 200.0, 700.0])
+def test_a_held_valve_starts_at_rest_under_the_scenarios_load(tmp_path, load_kg):
+    """The initial state holds the scenario's [load] at t = 0, not the plant file's m_L: at x = 0.2 m
+    chamber A carries exactly the load's force, and the run is the one whose plant file has that m_L."""
+    held = scenario_text(input='[input]\nkind = "step"\namplitude_V = 0.0\n', initial="[initial]\nx_m = 0.2\n",
+                         sensors="[sensors]\npressure_noise_Pa = 0.0\n")
+    sc = load_scenario(write(tmp_path, "load.toml", held + f"\n[load]\nm_L_kg = {load_kg}\n"))
+    rec = run_scenario(sc)
+    same = run_scenario(load_scenario(write(tmp_path, "plant.toml", held + f"\n[plant_overrides.boom]\nm_L = {load_kg}\n")))
+    for col in ("true_pA", "true_pB", "true_x", "true_v"):
+        np.testing.assert_array_equal(rec.truth[col], same.truth[col])
+    p = sc.plant.vector()
+    p[sam.P.m_L] = load_kg
+    A_A, A_B = np.pi / 4 * 0.080**2, np.pi / 4 * (0.080**2 - 0.045**2)
+    F = sam.geometry.external_force(0.2, 0.30, 1.04, 0.84, p[sam.P.theta_level], p[sam.P.cog_angle], 297.0, 0.2,
+                                    load_kg, 0.0, 1.9)
+    assert rec.truth["true_pA"][0] * A_A - rec.truth["true_pB"][0] * A_B == pytest.approx(F, rel=1e-9)
+    # at rest: only the null leakage creeps it (the plant file's 494 kg under a 0 or 700 kg load jumps 10-26 mm/s)
+    assert np.max(np.abs(rec.truth["true_v"])) < 2e-3
+
+
 @pytest.mark.parametrize("kind, keys", [
     ("sine", "amplitude_V = 3.0\nfrequency_Hz = 0.5\n"),
     ("chirp", "amplitude_V = 3.0\nf0_Hz = 0.1\nf1_Hz = 2.0\n"),
