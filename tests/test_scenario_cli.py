@@ -40,7 +40,7 @@ def test_plant_defaults_are_appendix_2():
     assert plant.valve.Q_N_PA == pytest.approx(24 * LPM)
     assert plant.valve.dp_N_BT == 3.5e6
     assert plant.cylinder.D_piston == 0.080 and plant.cylinder.x_max == 0.545
-    assert plant.boom.m_L == 494.0 and plant.boom.theta_level == np.pi / 2 - 0.415  # alpha1 + alpha2 = 0.415
+    assert plant.boom.m_L == 494.0 and plant.boom.theta_level == 0.415  # level at alpha1 + alpha2 (docs/model.md)
     assert plant.supply.p_S == 10e6
     assert plant.valve.omega_n == pytest.approx(2 * np.pi * 20)
 
