@@ -260,22 +260,22 @@ def test_replay_refuses_what_it_cannot_diagnose(tmp_path, capsys):
 
 
 def test_untested_parameters_are_named_and_position_can_be_dropped(tmp_path, capsys):
-    """The first 6 s of the healthy 60 s cycle at 800 kg are a stall with the pressures pinned
+    """The first 6 s of the healthy 60 s cycle at 800 kg on the former default plant (tests/stall_cases.py)
+    are a stall with the pressures pinned
     at supply and tank: K_extB and the offset are never tested, and "healthy" says so. A
     position glitch is refused, or made a missing sample with --drop-out-of-range; a position
     column left with nothing is refused."""
-    from sam.scenario import load_scenario, run_scenario
     import fdi
-    rec = run_scenario(load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "faults"
-                                     / "healthy_cycle_60s_800kg.toml"))
+    from stall_cases import stalled_800kg
+    rec, plant = stalled_800kg("healthy_cycle_60s_800kg.toml")
     k = rec.t <= 6.0
     first = Recording(rec.t[k], {c: v[k] for c, v in rec.signals.items()})
-    d = fdi.replay_recording(first, load_plant(), tmp_path / "s", figure=False)
+    d = fdi.replay_recording(first, plant, tmp_path / "s", figure=False)
     assert d.status == "healthy" and "healthy as far as tested: K_extB, offset" in d.note
     assert d.filter_health["tested_s"]["K_extB"] == 0.0 and d.filter_health["tested_s"]["K_int"] > 4.0
     # a machine that never moves: no baseline (it is learnt from the first motion), nothing tested
     rest = Recording(first.t, {**first.signals, "u": np.zeros_like(first.t)})
-    d = fdi.replay_recording(rest, load_plant(), tmp_path / "r", figure=False)
+    d = fdi.replay_recording(rest, plant, tmp_path / "r", figure=False)
     assert d.status == "healthy" and d.filter_health["first_motion_s"] is None
     assert "K_int, K_extA, K_extB, offset tested for less than" in d.note and "never left its" in d.note
     glitch = _recording(None, T=3001)
