@@ -346,8 +346,9 @@ def test_restarted_tests_relearn_the_baseline():
 
 @pytest.mark.parametrize("seed", [22, 31, 32])
 def test_reversal_after_a_long_steady_stroke_stays_healthy(tmp_path, seed):
-    """A healthy 3 V cycle of 30 s period at 650 kg from x = 50 mm (a 15 s extension at 1.5 cm/s
-    that does not reach the stop, then a retraction), replayed from the encoder: healthy. Left
+    """A healthy 2 V cycle of 30 s period at 650 kg from x = 50 mm (a 15 s extension at 1.6 cm/s
+    that does not reach the stop, to x = 0.29 m, then a retraction), replayed from the encoder:
+    healthy (at 3 V the default plant's load reaches the stop past the boom's vertical). Left
     free, the filter's calibration states drift along what a steady stroke leaves unseen and
     snap back at the reversal, which the bank reads as K_int; CalibrationStates.hold_after_s
     stops their random walk inside long strokes, in the detecting filter and the bank's reference."""
@@ -361,7 +362,7 @@ def test_reversal_after_a_long_steady_stroke_stays_healthy(tmp_path, seed):
     path = tmp_path / "reversal.toml"
     path.write_text(f'description = "healthy reversal after a 15 s stroke"\nplant = "{plant.as_posix()}"\n'
                     f'duration_s = 20.0\ndt_s = 0.001\nseed = {seed}\n'
-                    '[input]\nkind = "cycle"\namplitude_V = 3.0\nperiod_s = 30.0\n'
+                    '[input]\nkind = "cycle"\namplitude_V = 2.0\nperiod_s = 30.0\n'
                     '[load]\nm_L_kg = 650.0\n[initial]\nx_m = 0.05\n'
                     '[sensors]\npressure_noise_Pa = 20e3\nencoder_quantisation = true\n')
     rec = run_scenario(load_scenario(path)).measured()
