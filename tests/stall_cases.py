@@ -1,4 +1,5 @@
-"""A stalled cylinder for the tests of what the detector does with pinned pressures.
+"""The former default plant, for the tests whose examples were found on it, and a stalled
+cylinder for the tests of what the detector does with pinned pressures.
 
 The default plant lifts 800 kg from x = 0.05 m (docs/model.md, "Loads and lifting"); the former
 default, ``sam_level_at_pi2_minus_alpha_cog_below.toml``, does not (it lifts 719 kg), so its

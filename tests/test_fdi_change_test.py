@@ -439,7 +439,9 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     that rest 1.6, 3.0 and 6.3 s before their first stroke, unknown load 378-524 kg, from the
     encoder, judged as replay and the tune judge them (bank confirmation): none false-alarms.
     With the baseline learnt at rest instead of from the first motion, the two K_int ones
-    false-alarm within 0.2 s of their first motion (checked below)."""
+    false-alarm within 0.2 s of their first motion (checked below). Drawn on the former default
+    plant, where the runs were picked (tests/stall_cases.py); on the default plant the same draws
+    do not false-alarm with the baseline learnt at rest either (issue 33: open)."""
     from dataclasses import replace
 
     from sam import load_plant
@@ -447,9 +449,11 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     from fdi import FilterConfig, run_filter, tune
     from fdi.montecarlo import make_batch
 
+    from stall_cases import FORMER_PLANT
+
     th = Thresholds.shipped()
     picks = {300001: 21, 300002: 18, 300004: 20}
-    parts = [make_batch(load_plant(), 25, seed, duration=th.derived.run_length_s, inputs="long_cycles").inp
+    parts = [make_batch(load_plant(FORMER_PLANT), 25, seed, duration=th.derived.run_length_s, inputs="long_cycles").inp
              for seed in picks]
     rows = list(picks.values())
     inp = replace(parts[0], **{k: np.stack([getattr(p, k)[b] for p, b in zip(parts, rows)])
