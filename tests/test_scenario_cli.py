@@ -254,6 +254,7 @@ def test_demo_writes_named_folder(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert str(out) in printed
     # the sensitivity ranking is stated only as far as the 95 % intervals separate it (N = 512):
-    # p_A's three leading valve parameters were printed as a strict order within +-0.07
+    # p_A's leading valve parameters were once printed as a strict order within +-0.07; on the
+    # default plant (issue 33) the BT pair is tied at N = 512 and the PA pair separated
     line = next(ln for ln in printed.splitlines() if "2. sensitivity (paper_parameters" in ln)
-    assert "p_A: dp_N_PA ≈ dp_N_BT ≈ Q_N_BT (tied within the 95 % intervals) > Q_N_PA;" in line
+    assert "p_A: dp_N_BT ≈ Q_N_BT (tied within the 95 % intervals) > dp_N_PA > Q_N_PA;" in line
