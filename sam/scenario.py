@@ -103,6 +103,18 @@ class Scenario:
     substeps: int = 1  #: the model's sub-steps per dt (sam.dynamics.step)
     scheme: str = "euler"  #: the model's scheme, a key of sam.dynamics.SCHEMES
 
+    def start_params(self) -> np.ndarray:
+        """The plant's parameter vector (len(P),) with the time-varying ones (load, faults) at t = 0."""
+        params = self.plant.vector()
+        for name, values in self.time_varying.items():
+            params[P[name]] = values[0]
+        return params
+
+    def initial_state(self) -> np.ndarray:
+        """The state at t = 0 (7,): at rest with the valve centred, piston at ``x0_m``, holding the
+        scenario's load at t = 0 (not the plant file's m_L), so a held valve starts in equilibrium."""
+        return initial_state(self.start_params(), self.x0_m)
+
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file; every error names the file and the key."""
@@ -323,7 +335,7 @@ def run_scenario(sc: Scenario) -> Recording:
                         f"(samfdi simulate ... --engine rig); sam's simulator takes an open-loop [input]")
     params = sc.plant.vector()
     result = simulate_batch(
-        params, sc.u, sc.dt, x0=initial_state(params, sc.x0_m), time_varying=sc.time_varying,
+        params, sc.u, sc.dt, x0=sc.initial_state(), time_varying=sc.time_varying,
         record_every=sc.output_every, substeps=sc.substeps, scheme=sc.scheme,
     )
     keep = np.arange(0, len(sc.t) + 1, sc.output_every)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +21,9 @@ from sam.errors import UserError
 from sam.geometry import external_force, piston_position, quarter_turn_cos_sin
 
 PLANT = sam.load_plant()
+#: the former default, today's reconstruction before issue 33: the old code's plant
+OLD_PLANT = sam.load_plant(Path(__file__).resolve().parents[1] / "scenarios" / "plants"
+                           / "sam_level_at_pi2_minus_alpha_cog_below.toml")
 G = 9.81
 
 #: An alpha whose complement pi/2 - alpha is a double (0.415 itself is not: its complement
@@ -49,16 +53,20 @@ def _reference_runs(plant) -> str:
 def test_old_convention_is_reproduced_bit_for_bit():
     """theta_level = pi/2 - alpha, cog_angle = -pi/2 is the old model exactly: every state of a
     simulated run (initial state, both stops, loads either side) equals the old code's bit for bit."""
-    plant = PLANT.replace(theta_level=math.pi / 2 - ALPHA, cog_angle=-math.pi / 2)
+    plant = OLD_PLANT.replace(theta_level=math.pi / 2 - ALPHA)
     assert math.pi / 2 - plant.boom.theta_level == ALPHA  # the setting holds alpha exactly
     assert _reference_runs(plant) == OLD_DIGEST
 
 
-def test_the_default_plant_is_the_old_reconstruction():
-    """The shipped plant stays today's reconstruction (contract C1): level at pi/2 - 0.415 (to the
-    double nearest it), centre of gravity below the joint."""
+def test_the_default_plant_is_the_best_supported_reconstruction():
+    """The shipped plant is the reconstruction the study supports best (issue 33): level at
+    alpha1 + alpha2 = 0.415, centre of gravity along the m_R arm; the former default stays a named
+    file: level at pi/2 - 0.415 (to the double nearest it), centre of gravity below the joint."""
     b = PLANT.boom
-    assert b.theta_level == math.pi / 2 - 0.415 and b.cog_angle == -math.pi / 2
+    assert b.theta_level == 0.415 and b.cog_angle == math.pi
+    old = OLD_PLANT.boom
+    assert old.theta_level == math.pi / 2 - 0.415 and old.cog_angle == -math.pi / 2
+    assert OLD_PLANT.replace(theta_level=0.415, cog_angle=math.pi).vector().tolist() == PLANT.vector().tolist()
 
 
 @settings(max_examples=200, deadline=None)

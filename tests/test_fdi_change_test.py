@@ -346,8 +346,9 @@ def test_restarted_tests_relearn_the_baseline():
 
 @pytest.mark.parametrize("seed", [22, 31, 32])
 def test_reversal_after_a_long_steady_stroke_stays_healthy(tmp_path, seed):
-    """A healthy 3 V cycle of 30 s period at 650 kg from x = 50 mm (a 15 s extension at 1.5 cm/s
-    that does not reach the stop, then a retraction), replayed from the encoder: healthy. Left
+    """A healthy 2 V cycle of 30 s period at 650 kg from x = 50 mm (a 15 s extension at 1.6 cm/s
+    that does not reach the stop, to x = 0.29 m, then a retraction), replayed from the encoder:
+    healthy (at 3 V the default plant's load reaches the stop past the boom's vertical). Left
     free, the filter's calibration states drift along what a steady stroke leaves unseen and
     snap back at the reversal, which the bank reads as K_int; CalibrationStates.hold_after_s
     stops their random walk inside long strokes, in the detecting filter and the bank's reference."""
@@ -361,7 +362,7 @@ def test_reversal_after_a_long_steady_stroke_stays_healthy(tmp_path, seed):
     path = tmp_path / "reversal.toml"
     path.write_text(f'description = "healthy reversal after a 15 s stroke"\nplant = "{plant.as_posix()}"\n'
                     f'duration_s = 20.0\ndt_s = 0.001\nseed = {seed}\n'
-                    '[input]\nkind = "cycle"\namplitude_V = 3.0\nperiod_s = 30.0\n'
+                    '[input]\nkind = "cycle"\namplitude_V = 2.0\nperiod_s = 30.0\n'
                     '[load]\nm_L_kg = 650.0\n[initial]\nx_m = 0.05\n'
                     '[sensors]\npressure_noise_Pa = 20e3\nencoder_quantisation = true\n')
     rec = run_scenario(load_scenario(path)).measured()
@@ -438,7 +439,9 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     that rest 1.6, 3.0 and 6.3 s before their first stroke, unknown load 378-524 kg, from the
     encoder, judged as replay and the tune judge them (bank confirmation): none false-alarms.
     With the baseline learnt at rest instead of from the first motion, the two K_int ones
-    false-alarm within 0.2 s of their first motion (checked below)."""
+    false-alarm within 0.2 s of their first motion (checked below). Drawn on the former default
+    plant, where the runs were picked (tests/stall_cases.py); on the default plant the same draws
+    do not false-alarm with the baseline learnt at rest either (issue 33: open)."""
     from dataclasses import replace
 
     from sam import load_plant
@@ -446,9 +449,11 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     from fdi import FilterConfig, run_filter, tune
     from fdi.montecarlo import make_batch
 
+    from stall_cases import FORMER_PLANT
+
     th = Thresholds.shipped()
     picks = {300001: 21, 300002: 18, 300004: 20}
-    parts = [make_batch(load_plant(), 25, seed, duration=th.derived.run_length_s, inputs="long_cycles").inp
+    parts = [make_batch(load_plant(FORMER_PLANT), 25, seed, duration=th.derived.run_length_s, inputs="long_cycles").inp
              for seed in picks]
     rows = list(picks.values())
     inp = replace(parts[0], **{k: np.stack([getattr(p, k)[b] for p, b in zip(parts, rows)])

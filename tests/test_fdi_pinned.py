@@ -73,26 +73,26 @@ def test_offset_and_kint_tests_are_held_while_resting_on_the_extension_stop():
 
 @pytest.mark.slow
 def test_the_long_stall_still_needs_the_hold():
-    """The shipped healthy 60 s cycle at 800 kg stalls against the load with pinned pressures
+    """The healthy 60 s cycle at 800 kg on the former default plant (tests/stall_cases.py) stalls
+    against the load with pinned pressures
     (46.7 s of its 60 s): with the shipped thresholds it is healthy; with nothing ever pinned
     an offset test alarms (measured 19-24 s), the estimate that creeps where the pinned pressures
     hide it, with or without the CUSUM's memory (the confirmation bank, whose notch flows may
     move, withdraws those alarms too). After the 0.5 s warm-up the K_extA estimate stays below
     the 0.25 L/min target size (its test triggers at 17 s when nothing is held, withdrawn by the
     bank)."""
-    from sam.scenario import load_scenario, run_scenario
     from fdi import replay
+    from stall_cases import stalled_800kg
 
-    root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
-    rec = run_scenario(load_scenario(root / "healthy_cycle_60s_800kg.toml"))
+    rec, plant = stalled_800kg("healthy_cycle_60s_800kg.toml")
     th = Thresholds.shipped()
-    r = replay(rec, load_plant(), thresholds=th)
+    r = replay(rec, plant, thresholds=th)
     out, diagnosis = r.output, r.diagnosis
     assert diagnosis.status == "healthy"
     assert leak_lpm(out.mean[0, out.t >= th.window.warmup_s, I_KEXTA]).max() < 0.25
     for memory in (th.test.memory_s, None):
         # the long-stroke rule off too: this is about what the pinned hold alone does
-        unheld = replay(rec, load_plant(), thresholds=th.with_(pin_margin_Pa=NO_PINNING, memory_s=memory,
+        unheld = replay(rec, plant, thresholds=th.with_(pin_margin_Pa=NO_PINNING, memory_s=memory,
                                                               long_stroke_s=None)).diagnosis
         assert any(k.startswith("offset") for k in unheld.alarms)
 
@@ -100,13 +100,13 @@ def test_the_long_stall_still_needs_the_hold():
 def test_fed_chamber_leak_is_still_seen_in_a_stall():
     """Pinned at 10 / 0 MPa (800 kg stalls the cylinder), a leak out of the fed chamber A is
     made up through the open P->A notch at a pressure drop dp_N (Q / (Q_N x_s))^2, 17 kPa for
-    0.5 L/min: K_extA is NOT held there. The shipped 800 kg scenario (stalled from 0.4 to 2.3 s,
+    0.5 L/min: K_extA is NOT held there. The 800 kg sine on the former plant (stalled from 0.4 to 2.3 s,
     step at 2.0 s) is detected within 0.2 s and sized 0.5 L/min."""
     from fdi import replay
-    from sam.scenario import load_scenario, run_scenario
+    from stall_cases import stalled_800kg
 
-    rec = run_scenario(load_scenario(SCENARIOS / "extA_0p5lpm_step_800kg.toml"))
-    d = replay(rec, load_plant()).diagnosis
+    rec, plant = stalled_800kg("extA_0p5lpm_step_800kg.toml")
+    d = replay(rec, plant).diagnosis
     assert d.status == "fault" and d.isolated == ["K_extA"]
     assert 2.0 <= d.detection_time_s < 2.2
     assert d.size["K_extA"]["value"] == pytest.approx(0.5, abs=0.05)

@@ -130,8 +130,9 @@ def test_volume_flows_balance_in_steady_motion(u):
 
 def test_centred_valve_drifts_only_by_null_leakage():
     """Valve closed and centred, no faults: the load sinks at the rate the laminar null
-    leakage of Eqs. (13)-(14) lets it, found by hand from flow and force balances."""
-    p = PLANT.vector()
+    leakage of Eqs. (13)-(14) lets it, found by hand from flow and force balances. 800 kg at
+    x = 0.15 m: there the null-leakage pressures hold the default plant's 494 kg by stiction."""
+    p = PLANT.replace(m_L=800.0).vector()
     x0 = 0.15
     res = run(p, 0.0, 6.0, x0=sam.initial_state(p, x0))
     s = final_state(res)
@@ -147,7 +148,7 @@ def test_centred_valve_drifts_only_by_null_leakage():
     assert -5e-3 < v_hand < -1e-4  # sinking, about a millimetre per second
     assert s[S.v] == pytest.approx(v_hand, rel=0.02)
     # and without the null leakage the piston would hold still
-    p_tight = PLANT.replace(K_leak_PA=0.0, K_leak_AT=0.0, K_leak_PB=0.0, K_leak_BT=0.0).vector()
+    p_tight = PLANT.replace(m_L=800.0, K_leak_PA=0.0, K_leak_AT=0.0, K_leak_PB=0.0, K_leak_BT=0.0).vector()
     held = run(p_tight, 0.0, 2.0, x0=sam.initial_state(p, x0))
     assert abs(held["x"][0, -1] - x0) < 1e-6
 
@@ -171,7 +172,7 @@ def linearised_frequency_hz(p, s, u):
     return np.abs(hydraulic[0]) / (2 * np.pi)
 
 
-@pytest.mark.parametrize("B_eff, expected_hz", [(7.5e8, 6.95), (3.0e8, 4.68)])
+@pytest.mark.parametrize("B_eff, expected_hz", [(7.5e8, 6.93), (3.0e8, 4.54)])
 def test_hydraulic_natural_frequency(B_eff, expected_hz):
     """The model's linearised hydraulic mode at the paper's operating point agrees with the
     classic sqrt(B/m (A_A^2/V_A + A_B^2/V_B)) within 10 % (the classic form ignores the
@@ -190,8 +191,9 @@ def test_hydraulic_natural_frequency(B_eff, expected_hz):
 
 def test_euler_at_1ms_tracks_tight_reference_solution():
     """Eq. (22) at T = 1 ms against a tight-tolerance implicit solution of the same
-    right-hand side (Eq. (19)): pressures within 0.5 % of p_S throughout; velocity within
-    2 % of the peak speed in the transient and 0.2 % in the last 0.1 s (first-order error)."""
+    right-hand side (Eq. (19)): pressures within 0.6 % of p_S throughout; velocity within
+    2 % of the peak speed in the transient and 0.2 % in the last 0.1 s. The error is the
+    scheme's, first order: half the step halves it."""
     p = PLANT.vector()
     d = derived(p)
     x0 = sam.initial_state(p, 0.05)
@@ -206,8 +208,11 @@ def test_euler_at_1ms_tracks_tight_reference_solution():
                     atol=[1.0, 1.0, 1e-9, 1e-7, 1e-10, 1e-10, 1e-12], t_eval=np.arange(0, 1001) * DT)
     assert ref.success
     euler = run(p, u, seconds, x0=x0)
-    assert np.max(np.abs(euler["p_A"][0] - ref.y[S.p_A])) < 0.005 * p[P.p_S]
-    assert np.max(np.abs(euler["p_B"][0] - ref.y[S.p_B])) < 0.005 * p[P.p_S]
+    error = np.max(np.abs(euler["p_A"][0] - ref.y[S.p_A]))
+    assert error < 0.006 * p[P.p_S]
+    assert np.max(np.abs(euler["p_B"][0] - ref.y[S.p_B])) < 0.006 * p[P.p_S]
+    half = run(p, u, seconds, x0=x0, substeps=2)
+    assert np.max(np.abs(half["p_A"][0] - ref.y[S.p_A])) == pytest.approx(error / 2, rel=0.1)
     v_err = np.abs(euler["v"][0] - ref.y[S.v])
     assert np.max(v_err) < 0.02 * np.max(np.abs(ref.y[S.v]))
     assert np.max(v_err[-100:]) < 0.002 * np.max(np.abs(ref.y[S.v]))
@@ -362,10 +367,11 @@ def test_a_path_between_the_chambers_relaxes_their_difference_without_swapping_t
 
 
 def test_a_stalled_piston_rests_with_its_pressures_on_the_rails():
-    """800 kg cannot be lifted from x = 0.05 m at 10 MPa (docs/model.md): with the valve open to
-    extend, the piston stalls held by stiction, A fills to the supply and B drains to the tank,
-    and both stay there without the step-to-step oscillation of forward Euler."""
-    p = PLANT.replace(m_L=800.0).vector()
+    """900 kg cannot be lifted from x = 0.05 m at 10 MPa (the default plant lifts up to 819 kg,
+    docs/model.md): with the valve open to extend, the piston stalls held by stiction, A fills to
+    the supply and B drains to the tank, and both stay there without the step-to-step
+    oscillation of forward Euler."""
+    p = PLANT.replace(m_L=900.0).vector()
     res = run(p, 4.0, 4.0, x0=sam.initial_state(p, 0.05), record_every=1)
     x = _last_seconds(res, "x", 1.0)
     assert np.ptp(x) < 1e-6  # stalled

@@ -124,12 +124,13 @@ def test_a_pump_limited_supply_droops_and_limits_the_speed():
 
 def test_a_laminar_bypass_passes_flow_in_proportion_and_lets_the_load_sink():
     """The bypass is K (p_A - p_B) across the piston; with the valve centred the load sinks faster
-    the larger it is."""
+    the larger it is. 800 kg at x = 0.15 m: there the null-leakage pressures hold the default
+    plant's 494 kg by stiction (as in sam's test_centred_valve_drifts_only_by_null_leakage)."""
     c = _machine(bypass_m3_s_Pa=2e-12)
     assert leak_flows(7e6, 3e6, c)[0] == pytest.approx(2e-12 * 4e6)
     sink = []
     for bypass in (0.0, 2e-12, 1e-11):
-        r = rig.simulate(scenario(duration_s=2.0, x0=0.15, input={"kind": "step", "amplitude_V": 0.0}),
+        r = rig.simulate(scenario(duration_s=2.0, x0=0.15, m_L=800.0, input={"kind": "step", "amplitude_V": 0.0}),
                          settings(bypass_m3_s_Pa=bypass))
         sink.append(-r.truth["v"][-1])
     assert 0 < sink[0] < sink[1] < sink[2]
