@@ -30,7 +30,6 @@ def _halved(sc, st):
 
 @pytest.mark.parametrize("name", [
     "healthy_open_loop_cycle",  # the retracted stop met at 0.05 m/s, twice
-    "healthy_closed_loop_steps",  # the encoder in the loop
     "concealed_air_seals_hoses",  # Newton on the chambers' air and hoses
     "concealed_valve_and_supply",  # laps, notch, hysteresis, a sticking spool, the pump's line
     "extA_0p25lpm_closed_loop",
@@ -43,11 +42,13 @@ def test_halving_the_step_changes_the_pressures_by_less_than_a_tenth_of_the_nois
     assert d_A.max() < 0.1 * SIGMA and d_B.max() < 0.1 * SIGMA
 
 
-def test_a_pi_loop_converges_when_its_angle_is_exact():
-    """The 40 s PI work cycle with a load change: with the encoder's counts the loop's decisions
-    flip where a count does, and stick-slip amplifies that (docs/rig.md); with the exact angle the
-    step-halving difference is that of the integrator alone, below 10 Pa."""
-    sc, st = rig.load_rig_scenario(ROOT / "healthy_closed_loop_cycle_load_change.toml")
+@pytest.mark.parametrize("name", ["healthy_closed_loop_cycle_load_change", "healthy_closed_loop_steps"])
+def test_a_closed_loop_converges_when_its_angle_is_exact(name):
+    """The 40 s PI work cycle with a load change and the P loop's steps: with the encoder's counts
+    the loop's decisions flip where a count does, and stick-slip amplifies that (docs/rig.md; on the
+    default plant the steps' p_A then differs by 1.9 kPa at one flip); with the exact angle the
+    step-halving difference is that of the integrator alone, below 10 Pa (measured 3.4 Pa)."""
+    sc, st = rig.load_rig_scenario(ROOT / f"{name}.toml")
     st = dataclasses.replace(st, sensors=dataclasses.replace(st.sensors, encoder_deg=0.0))
     d_A, d_B = _halved(sc, st)
     assert d_A.max() < 10.0 and d_B.max() < 10.0
