@@ -25,7 +25,8 @@ from . import views
 from .constants import P_CAVITATION
 from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, stribeck
 from .geometry import (
-    cos_joint_angle, load_torque_cs, quarter_turn_cos_sin, stroke_end, torque_arm_cs, total_inertia,
+    cos_joint_angle, load_torque_cs, quarter_turn_cos_sin, stroke_end, torque_arm_cs, torque_arm_slope_cs,
+    total_inertia,
 )
 from .hydraulics import fault_leakages, flow_coefficient, inverse_capacitance, leak_conductance, valve_flows
 from .params import P
@@ -146,7 +147,7 @@ def rhs(s, u, p, d, ds):
     constants. Friction is LuGre (Eq. (17)); the load force is Eq. (21) plus the
     disturbance force F_d; leak faults are Eqs. (41)-(43); the optional effects
     of :class:`sam.params.Effects` enter through the hydraulics and friction
-    functions.
+    functions; Eq. (7)'s R-dot term where the plant's ``[equations]`` keep it.
     """
     rates(s, u, p, d, ds)
 
@@ -212,6 +213,9 @@ def rates(s, u, p, d, ds):
 
     ds[4] = v
     ds[5] = (p_A * A_A - p_B * A_B - F_mu - F_ext) * inv_m_red
+    if p[P.arm_rate_torque] != 0.0:
+        # Eq. (7)'s R-dot term, which Eq. (19) neglects: v = r omega, so dv/dt = r omega' + r'(theta) omega^2
+        ds[5] += torque_arm_slope_cs(x, cos_theta, r, p[P.L_1], p[P.L_2], p[P.L_3]) * v * v * inv_r * inv_r
     ds[6] = dz
     return c_A, c_B, G_A, G_B, G_AB
 

@@ -67,6 +67,13 @@ def torque_arm_cs(x, sin_theta, L_1, L_2, L_3):
 
 
 @jit
+def torque_arm_slope_cs(x, cos_theta, r, L_1, L_2, L_3):
+    """dr/dtheta [m] of Eq. (5), given x [m], cos(theta) and r there: ``(L_1 L_2 cos(theta) - r^2) / (x + L_3)``
+    (the pin distance x + L_3 grows at r per radian)."""
+    return (L_1 * L_2 * cos_theta - r * r) / (x + L_3)
+
+
+@jit
 def torque_arm(x, L_1, L_2, L_3):
     """Eq. (5): torque arm r = dx/dtheta [m] at piston position x [m]."""
     c = cos_joint_angle(x, L_1, L_2, L_3)

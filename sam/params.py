@@ -110,6 +110,17 @@ class Effects:
 
 
 @dataclass(frozen=True)
+class Equations:
+    """Which terms of the paper's equations the model keeps: model settings, not properties of a
+    machine. Each default is the paper's Eq. (19), so a plant file that does not name them gets the
+    model the paper used (docs/model.md, "Motion")."""
+
+    #: 1 (true): keep Eq. (7)'s R-dot term, the torque of a lever arm that changes as the boom turns:
+    #: dv/dt gains r'(theta) v^2 / r^2. 0 (false, the paper's Eq. (19)): neglect it.
+    arm_rate_torque: bool = False
+
+
+@dataclass(frozen=True)
 class Faults:
     """Turbulent fault leakages, Eqs. (41)-(43). The spool offset is in :class:`Valve`."""
 
@@ -139,6 +150,7 @@ class Plant:
     friction: Friction
     boom: Boom
     effects: Effects = field(default_factory=Effects)
+    equations: Equations = field(default_factory=Equations)
 
     def replace(self, **values: float) -> "Plant":
         """A copy with parameters changed by their flat name, e.g. ``replace(B_eff=1e9)``."""
@@ -172,6 +184,7 @@ _GROUP_TYPES = {
     "effects": Effects,
     "faults": Faults,
     "disturbances": Disturbances,
+    "equations": Equations,  # last: the columns before it keep their index
 }
 
 #: Flat parameter name -> its group ("valve", "boom", ...).

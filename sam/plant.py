@@ -2,7 +2,7 @@
 
 A plant file has one table per parameter group (``[valve]``, ``[supply]``,
 ``[cylinder]``, ``[fluid]``, ``[friction]``, ``[boom]``, optionally
-``[effects]``), with SI values under the field names of :mod:`sam.params`.
+``[effects]`` and ``[equations]``), with SI values under the field names of :mod:`sam.params`.
 A user's file needs only the keys it changes: everything else comes from the
 shipped default, ``scenarios/plants/sam.toml`` (Appendix 2 of the paper).
 Values are validated once, here; the model itself does not check them.
@@ -19,12 +19,12 @@ from typing import Any
 
 from .errors import UserError, did_you_mean, where
 from .params import (
-    Boom, Cylinder, Effects, Fluid, Friction, Plant, Supply, Valve,
+    Boom, Cylinder, Effects, Equations, Fluid, Friction, Plant, Supply, Valve,
 )
 
 _GROUPS = {
     "valve": Valve, "supply": Supply, "cylinder": Cylinder, "fluid": Fluid,
-    "friction": Friction, "boom": Boom, "effects": Effects,
+    "friction": Friction, "boom": Boom, "effects": Effects, "equations": Equations,
 }
 
 #: Parameters that must be strictly positive (areas, volumes, masses, lengths, gains...).
@@ -39,6 +39,8 @@ _NON_NEGATIVE = {
     "K_leak_PA", "K_leak_AT", "K_leak_PB", "K_leak_BT", "b", "r_B", "m_L", "m_R",
     "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p",
 }
+#: Model settings that are switched on or off: true or false in a plant file.
+_SWITCHES = {"arm_rate_torque"}
 #: Angles [rad] read as radians within one turn either way: a larger value was meant in degrees.
 _ANGLES = {"theta_level", "cog_angle"}
 #: Settings that plant files no longer take -> the one line that says what to give instead.
@@ -69,7 +71,7 @@ def read_toml(path: str | Path) -> dict[str, Any]:
 
 #: keys that only one kind of project file has: how a file given to the wrong command is recognised
 FILE_KINDS = {
-    "a plant file": frozenset(_GROUPS) - {"effects"},
+    "a plant file": frozenset(_GROUPS) - {"effects", "equations"},
     "a scenario file": frozenset({"duration_s", "dt_s", "output_dt_s", "input", "load", "faults", "sensors",
                                   "initial", "plant_overrides"}),
     "a GSA study file": frozenset({"parameters", "model", "N", "simulation", "n_bootstrap"}),
@@ -153,8 +155,12 @@ def _checked_group(group: str, values: dict[str, Any], source) -> dict[str, floa
     return {key: _check_value(source, group, key, value) for key, value in values.items()}
 
 
-def _check_value(source, group: str, key: str, value: Any) -> float:
+def _check_value(source, group: str, key: str, value: Any) -> float | bool:
     field = f"{group}.{key}"
+    if key in _SWITCHES:
+        if not isinstance(value, bool):
+            raise UserError(f"{where(source, field)}: expected true or false, got {value!r}")
+        return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise UserError(f"{where(source, field)}: expected a number in SI units, got {value!r}")
     value = float(value)
