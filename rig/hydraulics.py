@@ -68,11 +68,11 @@ def valve_flows(x_s, p_A, p_B, p_S, c):
     it draws from the supply line at p_S, at spool position x_s plus the offset."""
     x_o = x_s + c[C.offset]
     knee, expo, dp_l, p_T = c[C.notch_knee], c[C.notch_exponent], c[C.dp_laminar], c[C.p_T]
-    port = c[C.port]
-    q_PA = orifice(in_series(c[C.K_PA] * metering_area(x_o, c[C.lap_PA], knee, expo), port), p_S - p_A, dp_l)
-    q_BT = orifice(in_series(c[C.K_BT] * metering_area(x_o, c[C.lap_BT], knee, expo), port), p_B - p_T, dp_l)
-    q_PB = orifice(in_series(c[C.K_PB] * metering_area(-x_o, c[C.lap_PB], knee, expo), port), p_S - p_B, dp_l)
-    q_AT = orifice(in_series(c[C.K_AT] * metering_area(-x_o, c[C.lap_AT], knee, expo), port), p_A - p_T, dp_l)
+    port, full = c[C.port], c[C.full_area]  # the area stops growing once the notch uncovers its whole port
+    q_PA = orifice(in_series(c[C.K_PA] * min(metering_area(x_o, c[C.lap_PA], knee, expo), full), port), p_S - p_A, dp_l)
+    q_BT = orifice(in_series(c[C.K_BT] * min(metering_area(x_o, c[C.lap_BT], knee, expo), full), port), p_B - p_T, dp_l)
+    q_PB = orifice(in_series(c[C.K_PB] * min(metering_area(-x_o, c[C.lap_PB], knee, expo), full), port), p_S - p_B, dp_l)
+    q_AT = orifice(in_series(c[C.K_AT] * min(metering_area(-x_o, c[C.lap_AT], knee, expo), full), port), p_A - p_T, dp_l)
     Q_A, Q_B, Q_P = q_PA - q_AT, q_PB - q_BT, q_PA + q_PB
     lands = land_leakage_share(x_o, c[C.leak_band], c[C.leak_taper])
     if lands > 0.0:  # Eqs. (13)-(14): laminar leakage of the lands near centre

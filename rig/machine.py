@@ -74,6 +74,7 @@ def build(plant: Plant, settings: RigSettings, rng: np.random.Generator, source=
         c[C[f"lap_{edge}"]] = getattr(e, f"lap_{edge}")
         c[C[f"KL_{edge}"]] = getattr(v, f"K_leak_{edge}")
     c[C.port] = e.port_flow_m3_s / math.sqrt(v.dp_N_PA)  # inf: no restriction
+    c[C.full_area] = e.full_area_opening
     c[C.leak_band], c[C.K_u], c[C.omega_n], c[C.zeta] = v.leak_band, v.K_u, v.omega_n, v.zeta
     c[C.leak_taper] = e.leak_band_taper
     c[C.notch_knee], c[C.notch_exponent] = e.notch_knee, e.notch_exponent
