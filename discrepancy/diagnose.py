@@ -19,7 +19,9 @@ from sam.recording import Recording
 from . import locate as loc
 from .data import check_same_plant, check_segment, prepare, sampling_note
 from .fitting import FitResult, Model, Split, correlation_time, evaluate, fit, segment_delta_bic, segment_rss, segment_scales
-from .library import Free, Hypothesis, calibration_params, format_value, library
+from .commissioning import calibrate, calibration_params, commissioning_start
+from .library import Free, Hypothesis, format_value, library
+from .settings import Settings
 from .simulation import MEAS_PARAMS, SIGNALS, SegmentSimulator, fits
 
 #: A hypothesis is accepted when its BIC falls by more than this...
@@ -109,22 +111,25 @@ def _significant_change(c: dict) -> bool:
 
 
 def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, validate: Recording | None = None,
-             *, seg_s: float = 1.0, figures: bool = True, generic: bool = True) -> Report:
+             *, seg_s: float = 1.0, figures: bool = True, generic: bool = True,
+             settings: Settings = Settings()) -> Report:
     """Diagnose where and why ``plant`` fails to reproduce ``rec``; write the report to ``out_dir``."""
     t_start = time.perf_counter()
+    plant = plant.replace(arm_rate_torque=settings.arm_rate_torque)
     timings = {}
     warnings: list[str] = []
-    data = prepare(rec, plant)
+    data = prepare(rec, plant, settings=settings)
     if validate is not None:
-        vdata = prepare(validate, plant, role="validation recording", min_duration=1.0)
+        vdata = prepare(validate, plant, role="validation recording", min_duration=1.0, settings=settings)
         check_same_plant(data, vdata, plant, str(validate.source or "validation recording"))
         check_segment(seg_s, data, vdata)
         if note := sampling_note(data, vdata):
             warnings.append(note)
-        split = Split(SegmentSimulator(data, seg_s, held_out_every=10**9), SegmentSimulator(vdata, seg_s, all_held_out=True))
+        split = Split(SegmentSimulator(data, seg_s, held_out_every=10**9, scheme=settings.scheme),
+                      SegmentSimulator(vdata, seg_s, all_held_out=True, scheme=settings.scheme))
     else:
         check_segment(seg_s, data)
-        split = Split(SegmentSimulator(data, seg_s))
+        split = Split(SegmentSimulator(data, seg_s, scheme=settings.scheme))
     fsim = split.fit_sim
 
     # ---- compare: nominal, then calibrate the GSA-ranked nominal parameters
@@ -133,7 +138,8 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     cal_model = Model(base, calib)
     nominal_values = cal_model.values_of(cal_model.theta_of({}))
     th_nom = cal_model.theta_of({})
-    cal = fit(split, cal_model, [th_nom], max_nfev=60)
+    restart = commissioning_start(data, plant, calib, settings)
+    cal = calibrate(split, plant, calib, restart, settings)
     calibration = _calibration_changes(calib, nominal_values, cal)
     for c in calibration:
         if c["at_bound"]:
@@ -161,11 +167,11 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     timings["locate_s"] = time.perf_counter() - t_start
 
     # ---- name: signatures, then fit every hypothesis jointly with the calibration parameters
-    hyps = library(plant)
+    hyps = library(plant, frozenset(f.name for f in calib))
     sig = _signatures(split, cal, calib, hyps, r_cal_fit)
     cands = []
     for h in hyps:
-        cands.append(_fit_hypothesis(split, cal, calib, [h], n_eff, sig.get(h.name, 0.0)))
+        cands.append(_fit_hypothesis(split, cal, calib, [h], n_eff, sig.get(h.name, 0.0), restart=restart))
     cands.sort(key=_rank_key)
     accepted = [c for c in cands if c.accepted]
     chosen: list[Candidate] = []
@@ -300,7 +306,7 @@ def _rank_key(c: Candidate):
 
 def _fit_hypothesis(split: Split, cal: FitResult, calib, hyps: list[Hypothesis], n_eff: float, signature: float,
                     start_from: list[FitResult] | None = None, reference: FitResult | None = None,
-                    second: bool = False) -> Candidate:
+                    second: bool = False, restart: dict | None = None) -> Candidate:
     reference = reference or cal
     free = tuple(calib) + tuple(f for h in hyps for f in h.params)
     model = Model(cal.params, free, cal.meas)
@@ -316,9 +322,13 @@ def _fit_hypothesis(split: Split, cal: FitResult, calib, hyps: list[Hypothesis],
             for s in h.starts:
                 starts.append(model.theta_of({**merged, **s}))
     else:
+        # from the calibrated values, and from the commissioning start: the calibration may have absorbed
+        # part of the effect (a lower notch flow for a flow limit), which the effect's fit must be free to undo
         for h in hyps:
             for s in h.starts:
                 starts.append(model.theta_of({**base_vals, **s}))
+                if restart:
+                    starts.append(model.theta_of({**restart, **s}))
     res = fit(split, model, starts, max_nfev=30)
     return _judge(split, hyps, res, reference, n_eff, signature, second)
 
