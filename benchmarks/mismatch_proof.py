@@ -43,13 +43,15 @@ def score(case: Case, report) -> dict:
     ft = report.fit_table
     final = "augmented" if "augmented" in ft else ("generic" if report.verdict == "unknown_effect" and "generic" in ft
                                                    else "calibrated")
-    ranked = [c for c in report.ranked if c.accepted]
     return {
         "case": case.name, "group": case.group or case.kind, "kind": case.kind, "loop": case.loop,
         "load_kg": case.load_kg, "rate_Hz": case.rate_Hz, "position": case.position, "magnitude": case.magnitude,
         "expected": " + ".join(case.expect) or "none", "verdict": report.verdict, "named": " + ".join(named) or "-",
         "ok": bool(ok), "fitted": {k: v for c in report.chosen for k, v in c.effect_values().items()},
-        "runner_up": ranked[1].name if len(ranked) > 1 else "-",
+        "runner_up": report.sureness.get("runner_up", "-"),
+        "margin_bic_held": report.sureness.get("margin_bic_held"),
+        "design": report.design.excitation.name if report.design else "",
+        "floor_held": report.floor.pooled if report.floor else None,
         "generic": (report.generic or {}).get("equation", "") if report.verdict == "unknown_effect" else "",
         "held_nominal": ft["nominal"]["held"]["mean"], "held_calibrated": ft["calibrated"]["held"]["mean"],
         "held_final": ft[final]["held"]["mean"], "time_s": report.timings["total_s"],
@@ -74,6 +76,18 @@ def verdict(k: int, n: int, target: float) -> str:
     return "met" if lo >= target else ("not met" if hi < target else "undecided")
 
 
+def interleaved(cases: list[Case]) -> list[Case]:
+    """The cases group by group in turn (first of every group, then second, ...): a run stopped
+    early has covered every group evenly."""
+    groups: dict[str, list[Case]] = defaultdict(list)
+    for c in cases:  # clean recordings twice a round (closed and open loop): the largest target
+        groups[(c.group or c.kind) + (c.loop if c.kind == "clean" else "")].append(c)
+    out = []
+    for i in range(max(len(g) for g in groups.values())):
+        out += [g[i] for g in groups.values() if i < len(g)]
+    return out
+
+
 def run(cases: list[Case], out: Path, plant: sam.Plant) -> None:
     done = set()
     if out.exists():
@@ -84,7 +98,15 @@ def run(cases: list[Case], out: Path, plant: sam.Plant) -> None:
             continue
         rec = record(case).measured()
         t0 = time.perf_counter()
-        rep = diagnose(rec, plant, None, figures=False)
+        try:
+            rep = diagnose(rec, plant, None, figures=False)
+        except Exception as e:  # a crash is a result too: scored wrong, the run goes on
+            row = {"case": case.name, "group": case.group or case.kind, "kind": case.kind, "ok": False,
+                   "error": f"{type(e).__name__}: {e}", "time_s": time.perf_counter() - t0}
+            with out.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+            print(f"{case.name:44s} ERROR {row['error']}", flush=True)
+            continue
         row = score(case, rep)
         row["time_s"] = time.perf_counter() - t0
         with out.open("a") as f:
@@ -144,7 +166,7 @@ def main(argv=None) -> int:
         ap.error("--out is needed to run a set")
     cases = [c for c in SETS[args.set]() if (not args.case or c.name in args.case)
              and (not args.group or c.group in args.group)]
-    run(cases, args.out, sam.load_plant())
+    run(interleaved(cases), args.out, sam.load_plant())
     return 0
 
 

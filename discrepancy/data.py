@@ -128,6 +128,23 @@ def prepare(rec: Recording, plant: Plant, *, role: str = "recording", min_durati
     )
 
 
+def sensor_limits(data: Prepared) -> list[str]:
+    """What this recording's sensor set and sampling rate keep the diagnosis from telling apart."""
+    out = []
+    if "pS" not in data.columns:
+        out.append("no supply pressure (pS) is recorded: supply droop cannot be told from a valve flow limit or "
+                   "a transmitter lag by the chamber pressures alone; a pS transmitter at the valve settles it")
+    if data.position == "theta":
+        out.append("the position is the joint encoder's theta, turned into x through the plant's geometry: an error "
+                   "of the geometry (lengths, level angle) shows in the position as well as in the load, and is "
+                   "calibrated, not named; a linear transducer on the piston (x) separates the two")
+    if data.dt > 1.0001e-3:
+        out.append(f"sampled at {1 / data.dt:.0f} Hz: a transmitter lag or delay shorter than one sample "
+                   f"({1e3 * data.dt:.0f} ms) is not resolved, and a lag is told from a delay only well above "
+                   f"{3e3 * data.dt:.0f} ms; log at 1 kHz or faster")
+    return out
+
+
 def gap_mask(y: dict[str, np.ndarray], dt: float, plant: Plant, settings: Settings) -> np.ndarray:
     """Samples where the model's form is known to differ from a real machine's, and for
     ``settings.gap_hold_s`` after: the piston within ``settings.stop_band_m`` of an end stop (sam's
@@ -222,5 +239,5 @@ def check_same_plant(main: Prepared, other: Prepared, plant: Plant, other_label:
         )
 
 
-__all__ = ["Prepared", "prepare", "check_same_plant", "check_segment", "gap_mask", "sampling_note",
+__all__ = ["Prepared", "prepare", "check_same_plant", "check_segment", "gap_mask", "sampling_note", "sensor_limits",
            "spool_trajectory", "MIN_DURATION_S", "MIN_SEGMENT_S", "P", "S"]

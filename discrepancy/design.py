@@ -22,6 +22,7 @@ from sam.measurement import first_order_lag, time_delay
 from sam.profiles import INPUT_KINDS, evaluate
 
 from .fitting import FitResult
+from .simulation import SegmentSimulator
 
 #: Logging step of the designed runs [s].
 DT = 1e-3
@@ -69,6 +70,11 @@ class Design:
     @property
     def best(self) -> float:
         return self.separation[self.excitation.name]
+
+    def as_dict(self) -> dict:
+        return {"first": self.first, "second": self.second, "excitation": self.excitation.name,
+                "shows": self.excitation.shows, "load_kg": self.load_kg, "separation_noise_sd": self.separation,
+                "on_recording_noise_sd": self.on_recording}
 
     def scenario_toml(self, plant_path: Path | None, source: str) -> str:
         """The excitation as a scenario file for ``samfdi simulate`` (open loop)."""
@@ -122,3 +128,68 @@ def separate(first: tuple[str, FitResult], second: tuple[str, FitResult], noise_
         separation[e.name] = float(np.sqrt(np.mean(d ** 2)) / max(noise_Pa, 1.0))
     best = max(EXCITATIONS, key=lambda e: separation[e.name])
     return Design(first[0], second[0], best, high_load_kg if best.high_load else load_kg, separation, on_recording)
+
+
+#: Pairs of effects that a recording can leave alike (each fitted with its own calibration).
+LOOK_ALIKE = (frozenset({"entrained_air", "hose_compliance"}), frozenset({"sensor_lag", "time_delay"}),
+              frozenset({"friction_level", "pressure_friction"}))
+
+
+def partner(name: str) -> str | None:
+    """The effect that ``name`` is most easily taken for, if it has one in :data:`LOOK_ALIKE`."""
+    for pair in LOOK_ALIKE:
+        if name in pair:
+            return next(iter(pair - {name}))
+    return None
+
+
+def transmitter_noise(pA: np.ndarray, smooth_pA: np.ndarray) -> float:
+    """The pressure transmitters' noise [Pa]: the spread of p_A about its smoothed trajectory
+    (median absolute deviation, robust to the transients the smoothing rounds off)."""
+    d = pA - smooth_pA
+    return float(1.4826 * np.median(np.abs(d - np.median(d))))
+
+
+def held_out_separation(sim: SegmentSimulator, first: FitResult, second: FitResult, noise_Pa: float) -> float:
+    """RMS difference [noise sd] of two fitted models' p_A, p_B over the held-out segments of ``sim``."""
+    outs = [sim.simulate(f.params[None, :], f.meas[None, :] if np.any(f.meas) else None) for f in (first, second)]
+    held = sim.segment_mask("held")
+    d = np.concatenate([(outs[0][k][0] - outs[1][k][0])[held].ravel() for k in ("pA", "pB")])
+    return float(np.sqrt(np.mean(d ** 2)) / max(noise_Pa, 1.0))
+
+
+def settle(split, data, cands: list, chosen: list, plant, scheme: str, close: float) -> tuple[dict, Design | None]:
+    """How sure the first named effect is, and what would settle it.
+
+    Returns the runner-up (the best-ranked other effect, fitted alone), its margin (its held-out BIC
+    change minus the first's: positive = behind; and the held-out fit points between them), and a
+    :class:`Design` against the first effect's look-alike partner (:data:`LOOK_ALIKE`) or, without
+    one, against a runner-up that was accepted too and is less than ``close`` behind."""
+    if not chosen:
+        return {}, None
+    by = {c.name: c for c in cands}
+    first = by[chosen[0].hypothesis[0].name]
+    named = {h.name for h in chosen[0].hypothesis}
+    others = [c for c in cands if c.name not in named]
+    out: dict = {}
+    if others:
+        ru = others[0]
+        out = {"first": first.name, "runner_up": ru.name, "runner_up_title": ru.title,
+               "runner_up_accepted": ru.accepted, "margin_bic_held": ru.delta_bic_held - first.delta_bic_held,
+               "margin_fit_points": first.fit_after["mean"] - ru.fit_after["mean"]}
+    rival = by.get(partner(first.name))
+    if rival is None and others and others[0].accepted and out["margin_bic_held"] < close:
+        rival = others[0]
+    if rival is None or rival.name in named:
+        return out, None
+    y, sm = data.y["pA"], data.smooth["pA"]
+    ok = np.isfinite(y)
+    noise = transmitter_noise(y[ok], sm[ok])
+    m_L = float(first.result.params[P.m_L])
+    high = float(plant.uncertain["m_L"][1]) if "m_L" in plant.uncertain else 1.5 * m_L
+    on_rec = held_out_separation(split.held_sim, first.result, rival.result, noise)
+    return out, separate((first.name, first.result), (rival.name, rival.result), noise, m_L, high, on_rec, scheme)
+
+
+__all__ = ["Design", "EXCITATIONS", "Excitation", "LOOK_ALIKE", "partner", "predictions", "separate", "settle",
+           "transmitter_noise"]

@@ -30,3 +30,14 @@ class Settings:
     low_pressure_Pa: float = 0.2e6
     #: s: and so are the samples this long after either (the impact's ringing, the void closing)
     gap_hold_s: float = 0.05
+    #: the step floor's finer step is the model's step over this (discrepancy.floor)
+    floor_refine: int = 4
+    #: an effect must remove more than this many times the step floor of the held-out error
+    floor_margin: float = 2.0
+    #: a segment counts as the effect's regime when its change of the prediction exceeds this over the
+    #: segment's effective samples (in shares of its squared error): below, noise alone could move it
+    noise_factor: float = 4.0
+    #: s: the segment starts are moved by this either way to find the segments the start decides
+    start_shift_s: float = 0.005
+    #: ...and a segment whose squared error that changes by more than this share is not scored
+    start_sensitive_share: float = 1.0

@@ -226,6 +226,11 @@ class SegmentSimulator:
         self.last_cavitated = res.cavitated.reshape(m, n_seg).any(axis=1)
         return out
 
+    def unscore(self, segments: np.ndarray) -> None:
+        """Score nothing of these segments (bool, (n_seg,)): their error is not the model's."""
+        for k in SIGNALS:
+            self.mask[k][segments, :] = False
+
     # ------------------------------------------------------------------ residuals
     def residuals(self, sim: dict[str, np.ndarray], part: str = "fit") -> np.ndarray:
         """Weighted residuals (m, n_res): (simulated - measured) / scale, stacked over signals."""
