@@ -22,7 +22,7 @@ from scipy.stats import beta
 
 import sam
 from discrepancy import diagnose
-from mismatch_sets import SETS, UNKNOWN, Case, record
+from mismatch_sets import SETS, Case, record
 
 #: The targets of the issue, by kind of case: (share, what it counts).
 TARGETS = {"single": (0.90, "named first"), "clean": (0.95, "no effect named"),
@@ -118,11 +118,21 @@ def run(cases: list[Case], out: Path, plant: sam.Plant) -> None:
 
 def tables(rows: list[dict]) -> str:
     """The per-case table and the summary against the targets (markdown)."""
-    lines = ["| case | concealed | expected | named (runner-up) | ok | held-out fit nominal -> calibrated -> final | time |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| case | loop, load, logger | concealed | expected | verdict: named (runner-up, its held-out BIC margin) "
+             "| ok | held-out fit nominal -> calibrated -> final | time |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        runner = f" ({r['runner_up']})" if r["runner_up"] != "-" else ""
-        lines.append(f"| {r['case']} | {r['magnitude']} | {r['expected']} | {r['named']}{runner} | "
+        if "error" in r:
+            lines.append(f"| {r['case']} | | | | error: {r['error']} | **no** | | {r['time_s']:.0f} s |")
+            continue
+        found = r["named"]
+        if r["verdict"] == "unknown_effect":
+            found = f"not a known effect: `{r['generic']}`"
+        if r["runner_up"] not in ("-", None) and r["named"] != "-":
+            margin = r.get("margin_bic_held")
+            found += f" ({r['runner_up']}" + (f", {margin:+.0f}" if margin is not None else "") + ")"
+        logger = f"{r['loop']}, {r['load_kg']:.0f} kg" + (f", {r['rate_Hz']:.0f} Hz" if r["rate_Hz"] != 1000 else "") \
+            + (", theta" if r["position"] == "theta" else "")
+        lines.append(f"| {r['case']} | {logger} | {r['magnitude']} | {r['expected']} | {r['verdict']}: {found} | "
                      f"{'yes' if r['ok'] else '**no**'} | {r['held_nominal']:.1f} -> {r['held_calibrated']:.1f} -> "
                      f"{r['held_final']:.1f} | {r['time_s']:.0f} s |")
     lines += ["", "| kind | cases | right | rate [95 % interval] | target | verdict |", "|---|---|---|---|---|---|"]
@@ -137,7 +147,8 @@ def tables(rows: list[dict]) -> str:
             lo, hi = clopper_pearson(k, n)
             lines.append(f"| {kind} ({what}) | {n} | {k} | {k / n:.0%} [{lo:.0%}, {hi:.0%}] | {target:.0%} | "
                          f"{verdict(k, n, target)} |")
-    improved = [r["held_final"] > r["held_calibrated"] for r in rows if r["named"] != "-"]
+    rows = [r for r in rows if "error" not in r] + [r for r in rows if "error" in r]
+    improved = [r["held_final"] > r["held_calibrated"] for r in rows if r.get("named", "-") != "-"]
     lines.append(f"| held-out fit improves where an effect is named | {len(improved)} | {sum(improved)} | | all | "
                  f"{'met' if all(improved) else 'not met'} |")
     worst = max(r["time_s"] for r in rows)

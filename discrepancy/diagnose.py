@@ -148,11 +148,9 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     base = plant.vector()
     cal_model = Model(base, calib)
     nominal_values = cal_model.values_of(cal_model.theta_of({}))
-    th_nom = cal_model.theta_of({})
     restart = commissioning_start(data, plant, calib, settings)
     # segments whose error the start state decides (trapped oil at null) judge nothing: not scored
-    start_model = Model(base, calib)
-    start_params = start_model.build(start_model.theta_of(restart)[None, :])[0][0]
+    start_params = cal_model.build(cal_model.theta_of(restart)[None, :])[0][0]
     for sim in {id(s): s for s in (split.fit_sim, split.held_sim)}.values():
         unsure = start_sensitive(sim, start_params, settings)
         sim.unscore(unsure)

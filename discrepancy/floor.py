@@ -132,9 +132,10 @@ def specific(split: Split, res: FitResult, reference: FitResult, floor: Floor, n
     n_seg = split.n_segments("held")
     r_new = evaluate(split, Model(res.params, (), res.meas), none, "held")[0]
     r_ref = evaluate(split, Model(reference.params, (), reference.meas), none, "held")[0]
+    scored = segment_rss(r_ref, n_seg) > 0.0  # an unscored segment (start_sensitive) neither gains nor changes
     rss_ref = np.maximum(segment_rss(r_ref, n_seg), 1e-300)
-    gain = 1.0 - segment_rss(r_new, n_seg) / rss_ref
-    change = segment_rss(r_new - r_ref, n_seg) / rss_ref
+    gain = np.where(scored, 1.0 - segment_rss(r_new, n_seg) / rss_ref, 0.0)
+    change = np.where(scored, segment_rss(r_new - r_ref, n_seg) / rss_ref, 0.0)
     floor_s = floor.held if len(floor.held) == n_seg else np.full(n_seg, floor.pooled)
     active = change > np.maximum(floor_s, settings.noise_factor / max(n_seg_eff, 1.0))
     pooled = 1.0 - float(np.sum(r_new ** 2) / max(np.sum(r_ref ** 2), 1e-300))

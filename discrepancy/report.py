@@ -153,7 +153,7 @@ def _sureness(report) -> list[str]:
     """The runner-up, the margin, the step floor and the designed experiment, as markdown lines."""
     L = ["", "## How sure, and what would settle it", ""]
     if report.floor is not None:
-        L.append(f"- The model's own step accounts for {100 * report.floor.pooled:.1f} % of the calibrated model's "
+        L.append(f"- The model's own step accounts for {100 * report.floor.pooled:.2g} % of the calibrated model's "
                  f"held-out squared error (Heun at the model step against a {report.floor.refine}x finer one); an "
                  f"effect must remove more than twice that, and lower the error on every held-out segment where it "
                  f"changes the prediction.")
