@@ -116,7 +116,7 @@ def run(cases: list[Case], out: Path, plant: sam.Plant) -> None:
               f"{row['time_s']:5.1f} s", flush=True)
 
 
-def tables(rows: list[dict]) -> str:
+def tables(rows: list[dict], quiet: bool = False) -> str:
     """The per-case table and the summary against the targets (markdown)."""
     lines = ["| case | loop, load, logger | concealed | expected | verdict: named (runner-up, its held-out BIC margin) "
              "| ok | held-out fit nominal -> calibrated -> final | time |", "|---|---|---|---|---|---|---|---|"]
@@ -152,8 +152,10 @@ def tables(rows: list[dict]) -> str:
     lines.append(f"| held-out fit improves where an effect is named | {len(improved)} | {sum(improved)} | | all | "
                  f"{'met' if all(improved) else 'not met'} |")
     worst = max(r["time_s"] for r in rows)
-    lines.append(f"| time per recording | {len(rows)} | | median {sorted(r['time_s'] for r in rows)[len(rows) // 2]:.0f} s, "
-                 f"worst {worst:.0f} s | <= 60 s | {'met' if worst <= 60 else 'not met'} |")
+    # wall time: a verdict only when the run had the machine to itself (--quiet), never on a shared one
+    lines.append(f"| time per recording (wall) | {len(rows)} | | median {sorted(r['time_s'] for r in rows)[len(rows) // 2]:.0f} s, "
+                 f"worst {worst:.0f} s | <= 60 s | "
+                 f"{('met' if worst <= 60 else 'not met') if quiet else 'undecided (shared machine)'} |")
     lines += ["", "| effect | cases | right | rate [95 % interval] |", "|---|---|---|---|"]
     for group, oks in sorted(by_group.items()):
         k, n = sum(oks), len(oks)
@@ -169,9 +171,10 @@ def main(argv=None) -> int:
     ap.add_argument("--case", action="append", help="only these cases (repeatable)")
     ap.add_argument("--group", action="append", help="only the cases of these groups (repeatable)")
     ap.add_argument("--table", type=Path, help="print the tables of a finished run and stop")
+    ap.add_argument("--quiet", action="store_true", help="the run had the machine to itself: judge the time target")
     args = ap.parse_args(argv)
     if args.table:
-        print(tables([json.loads(line) for line in args.table.read_text().splitlines() if line.strip()]))
+        print(tables([json.loads(line) for line in args.table.read_text().splitlines() if line.strip()], args.quiet))
         return 0
     if args.out is None:
         ap.error("--out is needed to run a set")

@@ -195,7 +195,7 @@ _DEV_EFFECTS = (
     ("spool_lap", [{"lap_PA": a, "lap_AT": a, "lap_PB": a, "lap_BT": a} for a in (0.02, 0.04, 0.07)],
      "{lap_PA:.0%} overlap"),
     ("flow_saturation", [{"full_area_opening": a} for a in (0.7, 0.5, 0.35)], "notch area full at {full_area_opening:.0%}"),
-    ("supply_droop", [{"pump_flow_m3_s": q * LPM} for q in (22.0, 18.0, 15.0)], "pump {pump_flow_m3_s}"),
+    ("supply_droop", [{"pump_flow_m3_s": q * LPM} for q in (22.0, 18.0, 15.0)], "pump {pump_flow_m3_s:.2e} m^3/s"),
     ("bypass_leakage", [{"bypass_m3_s_Pa": k} for k in (1e-12, 2.5e-12, 5e-12)], "bypass {bypass_m3_s_Pa:.1e}"),
     ("pressure_friction", [{"seal_piston_m2": k, "seal_rod_m2": k / 2} for k in (1e-4, 2e-4, 4e-4)],
      "seals {seal_piston_m2:.1e} m^2"),
