@@ -48,7 +48,7 @@ CASES: tuple[Case, ...] = (
     Case("bypass_leakage", ("bypass_leakage",), {"K_bypass": 3e-12}, note="0.18 L/min per MPa"),
     Case("pressure_friction", ("pressure_friction",), {"k_fric_p": 1.5e-4}, note="1.5e-4 m^2"),
     Case("friction_level", ("friction_level",), {"F_C": 3000.0, "F_S": 6000.0, "b": 6000.0}, note="F_C 3 kN"),
-    Case("load_mass", ("load_mass",), {"m_L": 750.0}, note="750 kg instead of 494 kg"),
+    Case("load_mass", (), {"m_L": 750.0}, note="750 kg instead of 494 kg: a commissioning value (m_L is [uncertain])"),
     Case("sensor_lag", ("sensor_lag",), sensors={"lag_s": 0.01}, note="10 ms on every sensor"),
     Case("time_delay", ("time_delay",), sensors={"delay_s": 0.012}, note="12 ms"),
     Case("wrong_nominal", (), {"Q_N_BT": 3.0e-4, "B_eff": 1.1e9}, note="Q_N_BT 18 L/min, B_eff 1.1 GPa"),

@@ -15,10 +15,12 @@ def add_commands(subparsers) -> None:
     p = subparsers.add_parser(
         "mismatch",
         help="locate where simulation and a recording differ, name the missing physics, model it",
-        description="Compare the plant model with a recording, calibrate the nominal parameters, locate the "
+        description="Compare the plant model with a recording, calibrate what commissioning fixes (notch "
+                    "flows, B_eff, offset, the plant file's [uncertain] load and geometry), locate the "
                     "mismatch, rank candidate effects (entrained air, friction, spool lap, flow saturation, "
-                    "supply droop, bypass leakage, hose compliance, sensor lag/delay, load mass) and write "
-                    "DIR/report.md, DIR/report.json and figures.",
+                    "supply droop, bypass leakage, hose compliance, load inertia, transmitter lag/delay) against "
+                    "the model's own error and write DIR/report.md, DIR/report.json, figures and, for a "
+                    "look-alike, DIR/separate.toml (the test that would tell the two apart).",
     )
     p.add_argument("recording", type=Path, help="recording (.csv or .mat, see docs/recordings.md)")
     p.add_argument("--plant", type=Path, default=None, help="plant TOML (default: the shipped SAM)")
@@ -41,7 +43,8 @@ def handler(args: argparse.Namespace) -> int:
     plant = sam.load_plant(args.plant)
     rec = sam.read_recording(args.recording).measured()
     val = sam.read_recording(args.validate).measured() if args.validate else None
-    report = diagnose(rec, plant, out, validate=val, seg_s=args.segment, figures=not args.no_figures)
+    report = diagnose(rec, plant, out, validate=val, seg_s=args.segment, figures=not args.no_figures,
+                      plant_path=args.plant)
     print(report.headline)
     for w in report.warnings:
         print(f"warning: {w}")

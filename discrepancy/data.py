@@ -16,16 +16,16 @@ from scipy.signal import savgol_filter
 
 from sam import P, Plant, S, simulate_batch
 from sam.errors import UserError
-from sam.geometry import piston_position
+from sam.geometry import piston_position, stroke_end
 from sam.recording import Recording
+
+from .settings import Settings
 
 #: Shortest recording the diagnosis accepts [s]: it needs at least three
 #: simulation segments, two to fit and one to hold out.
 MIN_DURATION_S = 3.0
 #: Smallest peak-to-peak control signal [V] that counts as an excitation.
 MIN_INPUT_RANGE_V = 0.05
-#: Fastest simulation step [s]; slower recordings are simulated with sub-steps.
-MAX_SIM_DT = 1e-3
 #: Shortest simulation segment [s]: each segment starts with a 30 ms start-up transient that is not
 #: scored (SegmentSimulator's skip_s), and a segment ten times as long is mostly scored dynamics.
 MIN_SEGMENT_S = 0.3
@@ -46,6 +46,9 @@ class Prepared:
     x_s: np.ndarray  # spool position from the model's own spool dynamics (exact: depends on u only)
     dx_s: np.ndarray
     metadata: dict[str, str]
+    scored: dict[str, np.ndarray]  # bool masks: measured, and away from the model's known gaps (gap_mask)
+    position: str = "x"  # the position column the recording gave: "x" (a linear transducer) or "theta" (the encoder)
+    columns: frozenset = frozenset()  # every signal column of the recording
 
     @property
     def n(self) -> int:
@@ -68,7 +71,8 @@ def _fill_nan(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.interp(idx, idx[ok], y[ok]), ok
 
 
-def prepare(rec: Recording, plant: Plant, *, role: str = "recording", min_duration: float = MIN_DURATION_S) -> Prepared:
+def prepare(rec: Recording, plant: Plant, *, role: str = "recording", min_duration: float = MIN_DURATION_S,
+            settings: Settings = Settings()) -> Prepared:
     """Check a recording and build a :class:`Prepared` from it (raises UserError)."""
     label = _label(rec)
     for col in ("u", "pA", "pB"):
@@ -113,13 +117,48 @@ def prepare(rec: Recording, plant: Plant, *, role: str = "recording", min_durati
                 f"{label}: '{col}' reaches {np.max(y[col]) / 1e6:.1f} MPa, far above the supply pressure "
                 f"{plant.supply.p_S / 1e6:.1f} MPa of plant '{plant.name}': wrong plant?"
             )
-    n_sub = max(1, int(math.ceil(dt / MAX_SIM_DT - 1e-9)))
+    n_sub = max(1, int(math.ceil(dt / settings.max_step_s - 1e-9)))
     smooth = _smooth(y, dt, rec.signals.get("v"))
-    x_s, dx_s = spool_trajectory(plant, u, dt / n_sub, n_sub)
+    x_s, dx_s = spool_trajectory(plant, u, dt / n_sub, n_sub, settings.scheme)
+    gap = gap_mask(y, dt, plant, settings)
     return Prepared(
         name=label, t=np.asarray(rec.t, float), dt=dt, n_sub=n_sub, u=u, y=y, valid=valid, smooth=smooth,
-        x_s=x_s, dx_s=dx_s, metadata=dict(rec.metadata),
+        x_s=x_s, dx_s=dx_s, metadata=dict(rec.metadata), scored={k: valid[k] & ~gap for k in valid},
+        position="x" if "x" in rec.signals else "theta", columns=frozenset(rec.signals),
     )
+
+
+def sensor_limits(data: Prepared) -> list[str]:
+    """What this recording's sensor set and sampling rate keep the diagnosis from telling apart."""
+    out = []
+    if "pS" not in data.columns:
+        out.append("no supply pressure (pS) is recorded: supply droop cannot be told from a valve flow limit or "
+                   "a transmitter lag by the chamber pressures alone; a pS transmitter at the valve settles it")
+    if data.position == "theta":
+        out.append("the position is the joint encoder's theta, turned into x through the plant's geometry: an error "
+                   "of the geometry (lengths, level angle) shows in the position as well as in the load, and is "
+                   "calibrated, not named; a linear transducer on the piston (x) separates the two")
+    if data.dt > 1.0001e-3:
+        out.append(f"sampled at {1 / data.dt:.0f} Hz: a transmitter lag or delay shorter than one sample "
+                   f"({1e3 * data.dt:.0f} ms) is not resolved, and a lag is told from a delay only well above "
+                   f"{3e3 * data.dt:.0f} ms; log at 1 kHz or faster")
+    return out
+
+
+def gap_mask(y: dict[str, np.ndarray], dt: float, plant: Plant, settings: Settings) -> np.ndarray:
+    """Samples where the model's form is known to differ from a real machine's, and for
+    ``settings.gap_hold_s`` after: the piston within ``settings.stop_band_m`` of an end stop (sam's
+    stops are inelastic, a real one gives and rebounds) and a chamber pressure below
+    ``settings.low_pressure_Pa`` (sam clamps a cavitating chamber at its floor, a real one opens a
+    void that closes later; transmitters clip at 0). No effect of the library is judged there."""
+    b = plant.boom
+    end = float(stroke_end(plant.cylinder.x_max, b.theta_max, b.L_1, b.L_2, b.L_3))
+    near = (y["x"] < settings.stop_band_m) | (y["x"] > end - settings.stop_band_m)
+    near |= (y["pA"] < settings.low_pressure_Pa) | (y["pB"] < settings.low_pressure_Pa)
+    hold = int(round(settings.gap_hold_s / dt))
+    if hold > 0 and near.any():
+        near = np.convolve(near.astype(float), np.ones(hold + 1), mode="full")[:len(near)] > 0
+    return near
 
 
 def _window(dt: float, seconds: float, poly: int) -> int:
@@ -145,7 +184,8 @@ def _smooth(y: dict[str, np.ndarray], dt: float, v_meas: np.ndarray | None) -> d
     return out
 
 
-def spool_trajectory(plant: Plant, u: np.ndarray, dt_sim: float, n_sub: int) -> tuple[np.ndarray, np.ndarray]:
+def spool_trajectory(plant: Plant, u: np.ndarray, dt_sim: float, n_sub: int,
+                     scheme: str = "heun") -> tuple[np.ndarray, np.ndarray]:
     """Spool position and rate at each sample, from the model's spool dynamics (Eq. (15)).
 
     The spool depends on the input alone, so one run of the model gives it exactly.
@@ -153,7 +193,7 @@ def spool_trajectory(plant: Plant, u: np.ndarray, dt_sim: float, n_sub: int) -> 
     p = plant.vector()[None, :]
     uu = np.repeat(u, n_sub)
     rec_at = np.arange(0, len(uu), n_sub)
-    res = simulate_batch(p, uu, dt_sim, record_at=rec_at, channels=("x_s", "dx_s"))
+    res = simulate_batch(p, uu, dt_sim, record_at=rec_at, channels=("x_s", "dx_s"), scheme=scheme)
     return res["x_s"][0], res["dx_s"][0]
 
 
@@ -199,5 +239,5 @@ def check_same_plant(main: Prepared, other: Prepared, plant: Plant, other_label:
         )
 
 
-__all__ = ["Prepared", "prepare", "check_same_plant", "check_segment", "sampling_note", "spool_trajectory",
-           "MIN_DURATION_S", "MIN_SEGMENT_S", "P", "S"]
+__all__ = ["Prepared", "prepare", "check_same_plant", "check_segment", "gap_mask", "sampling_note", "sensor_limits",
+           "spool_trajectory", "MIN_DURATION_S", "MIN_SEGMENT_S", "P", "S"]

@@ -17,9 +17,13 @@ from sam import Plant
 from sam.recording import Recording
 
 from . import locate as loc
-from .data import check_same_plant, check_segment, prepare, sampling_note
+from .data import check_same_plant, check_segment, prepare, sampling_note, sensor_limits
+from .design import Design, settle
 from .fitting import FitResult, Model, Split, correlation_time, evaluate, fit, segment_delta_bic, segment_rss, segment_scales
-from .library import Free, Hypothesis, calibration_params, format_value, library
+from .commissioning import calibrate, calibration_params, commissioning_start
+from .floor import Floor, Specificity, specific, start_sensitive, step_floor
+from .library import Free, Hypothesis, format_value, library
+from .settings import Settings
 from .simulation import MEAS_PARAMS, SIGNALS, SegmentSimulator, fits
 
 #: A hypothesis is accepted when its BIC falls by more than this...
@@ -49,6 +53,7 @@ class Candidate:
     seg_bic_held: float = 0.0  # same, held out
     fit_before: dict = field(default_factory=dict)
     fit_after: dict = field(default_factory=dict)
+    specificity: Specificity | None = None  # its held-out gain segment by segment, against the step floor
 
     @property
     def name(self) -> str:
@@ -86,6 +91,11 @@ class Report:
     figures: list[str] = field(default_factory=list)
     n_eff: float = 0.0
     segment_s: float = 1.0  # length of the simulation segments [s]
+    floor: Floor | None = None  # the share of the calibrated error the model's own step accounts for
+    sureness: dict = field(default_factory=dict)  # the runner-up of the first named effect and its margin
+    design: Design | None = None  # the input that would tell the first named effect from its look-alike
+    limits: list[str] = field(default_factory=list)  # what the sensor set and sampling rate cannot tell apart
+    plant_path: str | None = None  # the plant file, for the designed scenario
     traces: dict = field(default_factory=dict)  # for figures
 
     @property
@@ -109,22 +119,28 @@ def _significant_change(c: dict) -> bool:
 
 
 def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, validate: Recording | None = None,
-             *, seg_s: float = 1.0, figures: bool = True, generic: bool = True) -> Report:
-    """Diagnose where and why ``plant`` fails to reproduce ``rec``; write the report to ``out_dir``."""
+             *, seg_s: float = 1.0, figures: bool = True, generic: bool = True,
+             settings: Settings = Settings(), plant_path: str | Path | None = None) -> Report:
+    """Diagnose where and why ``plant`` fails to reproduce ``rec``; write the report to ``out_dir``.
+
+    ``plant_path``: the plant file ``plant`` was read from, named in the designed scenario
+    (``separate.toml``) so that ``samfdi simulate`` runs it on the same plant; None: the default."""
     t_start = time.perf_counter()
+    plant = plant.replace(arm_rate_torque=settings.arm_rate_torque)
     timings = {}
     warnings: list[str] = []
-    data = prepare(rec, plant)
+    data = prepare(rec, plant, settings=settings)
     if validate is not None:
-        vdata = prepare(validate, plant, role="validation recording", min_duration=1.0)
+        vdata = prepare(validate, plant, role="validation recording", min_duration=1.0, settings=settings)
         check_same_plant(data, vdata, plant, str(validate.source or "validation recording"))
         check_segment(seg_s, data, vdata)
         if note := sampling_note(data, vdata):
             warnings.append(note)
-        split = Split(SegmentSimulator(data, seg_s, held_out_every=10**9), SegmentSimulator(vdata, seg_s, all_held_out=True))
+        split = Split(SegmentSimulator(data, seg_s, held_out_every=10**9, scheme=settings.scheme),
+                      SegmentSimulator(vdata, seg_s, all_held_out=True, scheme=settings.scheme))
     else:
         check_segment(seg_s, data)
-        split = Split(SegmentSimulator(data, seg_s))
+        split = Split(SegmentSimulator(data, seg_s, scheme=settings.scheme))
     fsim = split.fit_sim
 
     # ---- compare: nominal, then calibrate the GSA-ranked nominal parameters
@@ -132,9 +148,20 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     base = plant.vector()
     cal_model = Model(base, calib)
     nominal_values = cal_model.values_of(cal_model.theta_of({}))
-    th_nom = cal_model.theta_of({})
-    cal = fit(split, cal_model, [th_nom], max_nfev=60)
+    restart = commissioning_start(data, plant, calib, settings)
+    # segments whose error the start state decides (trapped oil at null) judge nothing: not scored
+    start_params = cal_model.build(cal_model.theta_of(restart)[None, :])[0][0]
+    for sim in {id(s): s for s in (split.fit_sim, split.held_sim)}.values():
+        unsure = start_sensitive(sim, start_params, settings)
+        sim.unscore(unsure)
+        if unsure.any():
+            t0s = ", ".join(f"{sim.data.t[s]:.0f}" for s in sim.seg.starts[unsure])
+            warnings.append(f"{int(unsure.sum())} segment(s) of {sim.data.name} (from {t0s} s) are not scored: "
+                            f"moving their start by {1e3 * settings.start_shift_s:.0f} ms changes their error by more "
+                            f"than {100 * settings.start_sensitive_share:.0f} % (the oil is trapped at null)")
+    cal = calibrate(split, plant, calib, restart, settings)
     calibration = _calibration_changes(calib, nominal_values, cal)
+    floor = step_floor(split, cal, settings)
     for c in calibration:
         if c["at_bound"]:
             warnings.append(f"calibrated {c['parameter']} hit its bound ({c['text']}): the nominal plant may be far off")
@@ -158,15 +185,23 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     n_blocks = 3 * int(np.sum(fsim.segment_mask("fit")))
     tau = correlation_time(r_cal_fit, n_blocks)
     n_eff = max(cal.n_fit / tau, 10.0)
+    gate = _Gate(floor, settings, n_eff / split.n_segments("fit"))
     timings["locate_s"] = time.perf_counter() - t_start
 
     # ---- name: signatures, then fit every hypothesis jointly with the calibration parameters
-    hyps = library(plant)
+    hyps = library(plant, frozenset(f.name for f in calib))
     sig = _signatures(split, cal, calib, hyps, r_cal_fit)
     cands = []
     for h in hyps:
-        cands.append(_fit_hypothesis(split, cal, calib, [h], n_eff, sig.get(h.name, 0.0)))
+        cands.append(_fit_hypothesis(split, cal, calib, [h], n_eff, sig.get(h.name, 0.0), gate, restart=restart))
     cands.sort(key=_rank_key)
+    if _DEBUG:
+        print(f"   floor: held {floor.pooled:.4f} fit {floor.pooled_fit:.4f}; n_seg_eff {gate.n_seg_eff:.0f}")
+        for c in cands:
+            sp = c.specificity
+            print(f"   1st {c.name}: acc {c.accepted} dBIC {c.delta_bic:.0f} segh {c.seg_bic_held:.0f} "
+                  f"gf {c.gain_fit:.3f} gh {c.gain_held:.3f} spec {sp.passed} act {sp.active.sum()}/{len(sp.active)} "
+                  f"gains {np.array2string(sp.gain, precision=3)} {c.summary()}")
     accepted = [c for c in cands if c.accepted]
     chosen: list[Candidate] = []
     if accepted:
@@ -199,14 +234,14 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
         best2 = None
         for h in pool:
             c1 = first_round[h.name]
-            c2 = _fit_hypothesis(wsplit, cal, calib, first.hypothesis + [h], n_eff2, sig2.get(h.name, 0.0),
+            c2 = _fit_hypothesis(wsplit, cal, calib, first.hypothesis + [h], n_eff2, sig2.get(h.name, 0.0), gate,
                                  start_from=[ref1, c1.result], reference=ref1, second=True)
             if c2.accepted:
                 # ablation: the first effect alone, re-fitted from the pair's optimum; the second must still
                 # pass every test against it (it has to earn its gain on its own, held out included)
                 abl = _refit(wsplit, cal, calib, first, [c2.result])
                 if abl.rss_fit < ref1.rss_fit:
-                    c2 = _judge(wsplit, first.hypothesis + [h], c2.result, abl, n_eff2, c2.signature, second=True)
+                    c2 = _judge(wsplit, first.hypothesis + [h], c2.result, abl, n_eff2, c2.signature, gate, second=True)
             if _DEBUG:
                 print(f"   2nd {h.name}: sig {sig2.get(h.name, 0):.2f} acc {c2.accepted} dBIC {c2.delta_bic:.0f} "
                       f"dBICh {c2.delta_bic_held:.0f} neff {n_eff2:.0f} "
@@ -253,11 +288,14 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
         for name in c.result.at_bounds:
             warnings.append(f"fitted {name} of '{c.name}' sits at its bound: the true value may lie beyond it")
     verdict, headline = _verdict(chosen, calibration, gen, fit_table, located, plant)
+    sureness, design = settle(split, data, cands, chosen, plant, settings.scheme, BIC_STRONG)
+    timings["settle_s"] = time.perf_counter() - t_start
     report = Report(
         source=str(rec.source or "recording"), validate_source=str(validate.source) if validate is not None else None,
         verdict=verdict, headline=headline, fit_table=fit_table, calibration=calibration, located=located,
         ranked=cands, chosen=chosen, generic=gen, warnings=warnings, timings=timings, n_eff=n_eff,
-        segment_s=fsim.seg.length * data.dt,
+        segment_s=fsim.seg.length * data.dt, floor=floor, sureness=sureness, design=design,
+        limits=sensor_limits(data), plant_path=str(plant_path) if plant_path is not None else None,
     )
     report.traces = {"split": split, "nominal": base, "calibrated": cal, "final": final, "residual": res,
                      "masks": masks, "energy": energy}
@@ -298,9 +336,19 @@ def _rank_key(c: Candidate):
     return (not c.accepted, round(c.delta_bic_held, 0), -c.signature)
 
 
+@dataclass(frozen=True)
+class _Gate:
+    """What an effect's evidence is judged against besides the BIC: the step floor, the settings, and
+    the effective samples of one segment (floor.specific)."""
+
+    floor: Floor
+    settings: Settings
+    n_seg_eff: float
+
+
 def _fit_hypothesis(split: Split, cal: FitResult, calib, hyps: list[Hypothesis], n_eff: float, signature: float,
-                    start_from: list[FitResult] | None = None, reference: FitResult | None = None,
-                    second: bool = False) -> Candidate:
+                    gate: _Gate, start_from: list[FitResult] | None = None, reference: FitResult | None = None,
+                    second: bool = False, restart: dict | None = None) -> Candidate:
     reference = reference or cal
     free = tuple(calib) + tuple(f for h in hyps for f in h.params)
     model = Model(cal.params, free, cal.meas)
@@ -316,15 +364,19 @@ def _fit_hypothesis(split: Split, cal: FitResult, calib, hyps: list[Hypothesis],
             for s in h.starts:
                 starts.append(model.theta_of({**merged, **s}))
     else:
+        # from the calibrated values, and from the commissioning start: the calibration may have absorbed
+        # part of the effect (a lower notch flow for a flow limit), which the effect's fit must be free to undo
         for h in hyps:
             for s in h.starts:
                 starts.append(model.theta_of({**base_vals, **s}))
+                if restart:
+                    starts.append(model.theta_of({**restart, **s}))
     res = fit(split, model, starts, max_nfev=30)
-    return _judge(split, hyps, res, reference, n_eff, signature, second)
+    return _judge(split, hyps, res, reference, n_eff, signature, gate, second)
 
 
 def _judge(split: Split, hyps: list[Hypothesis], res: FitResult, reference: FitResult, n_eff: float,
-           signature: float, second: bool = False) -> Candidate:
+           signature: float, gate: _Gate, second: bool = False) -> Candidate:
     """Evidence of a fitted hypothesis against a reference fit: BIC, gains, held-out fit, acceptance."""
     k = len(res.free) - len(reference.free)
     dbic = n_eff * math.log(max(res.rss_fit, 1e-300) / reference.rss_fit) + k * math.log(n_eff)
@@ -355,7 +407,10 @@ def _judge(split: Split, hyps: list[Hypothesis], res: FitResult, reference: FitR
         # effect has to remove a visible share of the error (both parts) and raise the held-out fit
         evidence = (evidence and dbic < -BIC_STRONG and gain_fit > MIN_GAIN and gain_held > MIN_GAIN
                     and f_new["mean"] - f_ref["mean"] >= MIN_FIT_POINTS)
-    c.accepted = evidence and _away_from_nominal(hyps, res) and _resolvable(hyps, res, split)
+    # and beat the model's own error specifically: on every held-out segment where it changes the
+    # prediction, and by more than the step floor over the held-out part (discrepancy.floor)
+    c.specificity = specific(split, res, reference, gate.floor, gate.n_seg_eff, gate.settings)
+    c.accepted = evidence and c.specificity.passed and _away_from_nominal(hyps, res) and _resolvable(hyps, res, split)
     return c
 
 

@@ -54,6 +54,8 @@ class Model:
                 meas[:, MEAS_PARAMS.index(f.name)] = vals
             elif f.name.startswith("c_"):  # a coefficient of the generic route's disturbance term
                 continue
+            elif f.apply is not None:
+                f.apply(params, vals)
             else:
                 params[:, P[f.name]] = vals
         return params, meas
@@ -65,8 +67,8 @@ class Model:
                 v = values[f.name]
             elif f.name in MEAS_PARAMS:
                 v = self.base_meas[MEAS_PARAMS.index(f.name)]
-            elif f.name.startswith("c_"):
-                v = 0.0
+            elif f.name.startswith("c_") or f.apply is not None:
+                v = 0.0  # a term's coefficient, an increment: none at the base
             else:
                 v = self.base[P[f.name]]
             out.append(f.to_theta(v))

@@ -13,14 +13,20 @@ parameters are searched in log10 space from a grid of starts.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from sam import Plant
+import numpy as np
+
+from sam import P, Plant
 
 
 @dataclass(frozen=True)
 class Free:
-    """One free parameter: a flat plant name (or a measurement-side name), its box and scaling."""
+    """One free parameter: a flat plant name (or a measurement-side name), its box and scaling.
+
+    ``apply`` (optional): how the value enters the plant vectors when it is not a plant parameter
+    itself, ``apply(params (m, len(P)), values (m,))`` in place."""
 
     name: str
     lo: float
@@ -28,6 +34,7 @@ class Free:
     log: bool = True
     unit: str = ""
     label: str = ""  # how an engineer says it
+    apply: Callable | None = field(default=None, compare=False)
 
     def to_theta(self, value: float) -> float:
         value = min(max(value, self.lo), self.hi)
@@ -79,25 +86,24 @@ def format_value(v: float, unit: str) -> str:
     return f"{v:.4g} {unit}".strip()
 
 
-def calibration_params(plant: Plant) -> tuple[Free, ...]:
-    """The nominal parameters calibrated first, as the paper's GSA ranks them (Table 2):
-    the valve's nominal flows (with fixed nominal pressure drops the flow gain
-    K_v = Q_N / sqrt(dp_N) is what matters), the bulk modulus and the spool offset."""
-    v = plant.valve
-    out = [
-        Free(name, getattr(v, name) / 3, getattr(v, name) * 3, True, "L/min", f"nominal flow {name[4:6]}")
-        for name in ("Q_N_PA", "Q_N_BT", "Q_N_PB", "Q_N_AT")
-    ]
-    out.append(Free("B_eff", plant.fluid.B_eff / 5, plant.fluid.B_eff * 4, True, "MPa", "bulk modulus"))
-    out.append(Free("offset", -0.05, 0.05, False, "%", "spool offset (of full travel)"))
-    return tuple(out)
+def extra_inertia(params: np.ndarray, J: np.ndarray) -> None:
+    """Add J [kg m^2] to the boom's inertia about its joint through the boom length L_B
+    (J_B = m_B L_B^2 / 12, Eq. (16)): the one parameter that changes the inertia and nothing else."""
+    params[:, P.L_B] = np.sqrt(params[:, P.L_B] ** 2 + 12.0 * J / params[:, P.m_B])
 
 
-def library(plant: Plant) -> tuple[Hypothesis, ...]:
-    """The candidate effects for this plant (bounds scale with its nominal values)."""
+def library(plant: Plant, calibrated: frozenset[str] = frozenset()) -> tuple[Hypothesis, ...]:
+    """The candidate effects for this plant (bounds scale with its nominal values). A hypothesis
+    whose parameters are all ``calibrated`` is no effect but a commissioning value, and is left out
+    (the load's mass when the plant file marks it uncertain)."""
+    return tuple(h for h in _library(plant) if not {f.name for f in h.params} <= calibrated)
+
+
+def _library(plant: Plant) -> tuple[Hypothesis, ...]:
     Q_N = max(plant.valve.Q_N_PA, plant.valve.Q_N_PB)
     f = plant.friction
     m_L = plant.boom.m_L
+    J_B = plant.boom.m_B * plant.boom.L_B ** 2 / 12.0
     return (
         Hypothesis(
             "entrained_air", "entrained air (pressure-dependent bulk modulus)",
@@ -180,25 +186,36 @@ def library(plant: Plant) -> tuple[Hypothesis, ...]:
             nominal={"m_L": m_L},
         ),
         Hypothesis(
-            "sensor_lag", "sensor lag (first-order)",
-            (Free("tau_sensor", 1e-4, 0.2, True, "ms", "sensor time constant"),),
-            "The sensors (or their filters) respond with a first-order lag.",
-            "every measured signal trails the simulation in fast transients",
-            starts=tuple({"tau_sensor": t} for t in (1e-3, 5e-3, 2e-2)),
-            probe={"tau_sensor": 5e-3},
-            alike="any sensor or filter dynamics; a higher-order filter lies between a lag and a delay",
+            "load_inertia", "load inertia beyond the load's mass (a long or distributed load, extra mass on the boom)",
+            (Free("J_extra", -0.8 * J_B, 6.0 * J_B, False, "kg m^2", "extra inertia about the joint",
+                  apply=extra_inertia),),
+            "The boom and its load resist acceleration more (or less) than the plant file's masses at "
+            "their distances say: a load with a radius of gyration of its own, attachments.",
+            "pressure transients at accelerations and the hydraulic mode's frequency off, the steady load pressure right",
+            starts=tuple({"J_extra": J_B * a} for a in (-0.4, 0.5, 1.5, 4.0)),
+            probe={"J_extra": 0.5 * J_B},
         ),
         Hypothesis(
-            "time_delay", "time delay (transport / logging)",
+            "sensor_lag", "pressure transmitter lag (first-order)",
+            (Free("tau_sensor", 1e-4, 0.2, True, "ms", "transmitter time constant"),),
+            "The pressure transmitters (or their filters) respond with a first-order lag.",
+            "the measured pressures trail the simulation in fast transients",
+            starts=tuple({"tau_sensor": t} for t in (1e-3, 5e-3, 2e-2)),
+            probe={"tau_sensor": 5e-3},
+            alike="any transmitter or filter dynamics; a higher-order filter lies between a lag and a delay",
+        ),
+        Hypothesis(
+            "time_delay", "pressure signal delay (transport / logging)",
             (Free("delay_sensor", 1e-4, 0.15, True, "ms", "time delay"),),
-            "The measured signals are delayed with respect to the input (valve electronics, logger).",
-            "every signal is shifted in time; largest mismatch at the fastest input changes",
+            "The measured pressures are delayed with respect to the input and the position (the "
+            "transmitters' electronics, the logger).",
+            "the pressures are shifted in time; largest mismatch at the fastest input changes",
             starts=tuple({"delay_sensor": t} for t in (2e-3, 1e-2, 4e-2)),
             probe={"delay_sensor": 5e-3},
-            alike="a higher-order sensor or filter lag (two cascaded lags look like a delay plus a shorter lag)",
+            alike="a higher-order transmitter or filter lag (two cascaded lags look like a delay plus a shorter lag)",
         ),
     )
 
 
 def by_name(plant: Plant) -> dict[str, Hypothesis]:
-    return {h.name: h for h in library(plant)}
+    return {h.name: h for h in _library(plant)}

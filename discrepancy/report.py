@@ -11,7 +11,7 @@ import numpy as np
 from .simulation import SIGNALS
 
 #: every file a diagnosis writes into its folder (refused there without --force)
-OUTPUT_FILES = ("report.md", "report.json", "overlay.png", "overlay_validation.png", "residual.png")
+OUTPUT_FILES = ("report.md", "report.json", "overlay.png", "overlay_validation.png", "residual.png", "separate.toml")
 _MODEL_COLOURS = {"nominal": "tab:blue", "calibrated": "tab:orange", "augmented": "tab:green",
                   "generic term": "tab:purple"}
 _SIG_UNIT = {"pA": ("p_A [MPa]", 1e-6), "pB": ("p_B [MPa]", 1e-6), "x": ("x [mm]", 1e3)}
@@ -36,7 +36,8 @@ def _candidate_dict(c, rank: int) -> dict:
     return {
         "rank": rank, "name": c.name, "title": c.title, "accepted": c.accepted,
         "evidence": {"signature_match": c.signature, "delta_bic": c.delta_bic, "delta_bic_held_out": c.delta_bic_held,
-                     "error_reduction_fit": c.gain_fit, "error_reduction_held_out": c.gain_held},
+                     "error_reduction_fit": c.gain_fit, "error_reduction_held_out": c.gain_held,
+                     "held_out_segments": c.specificity.as_dict() if c.specificity else None},
         "fitted": c.effect_values(), "fitted_text": c.summary(), "at_bounds": c.result.at_bounds,
         "where_it_shows": "; ".join(h.shows for h in c.hypothesis),
         "looks_alike": [h.alike for h in c.hypothesis if h.alike],
@@ -56,6 +57,10 @@ def to_json(report) -> dict:
         "generic_route": report.generic,
         "warnings": report.warnings,
         "effective_samples_for_bic": report.n_eff,
+        "step_floor": report.floor.as_dict() if report.floor else None,
+        "how_sure": report.sureness,
+        "what_would_settle_it": report.design.as_dict() if report.design else None,
+        "limits_of_the_recording": report.limits,
         "timings_s": report.timings,
         "figures": report.figures,
     })
@@ -123,6 +128,7 @@ def to_markdown(report) -> str:
               f"(held out {c.delta_bic_held:.0f}), held-out error -{100 * c.gain_held:.0f} %."]
     for h in (h for c in report.chosen for h in c.hypothesis if h.alike):
         L.append(f"- *{h.title}* looks alike in the data: {h.alike}.")
+    L += _sureness(report)
     g = report.generic
     L += ["", "## Generic route (unknown inputs, sparse regression)", ""]
     if g:
@@ -134,11 +140,39 @@ def to_markdown(report) -> str:
                      + ("" if g.get("significant") or g.get("significant_but_library") else " -- not significant"))
     else:
         L.append("- not run")
+    if report.limits:
+        L += ["", "## What this recording cannot tell apart", ""] + [f"- {w[0].upper()}{w[1:]}." for w in report.limits]
     if report.figures:
         L += ["", "## Figures", ""] + [f"![{f}]({f})" for f in report.figures]
     t = report.timings
     L += ["", f"Run time {t.get('total_s', 0):.1f} s."]
     return "\n".join(L) + "\n"
+
+
+def _sureness(report) -> list[str]:
+    """The runner-up, the margin, the step floor and the designed experiment, as markdown lines."""
+    L = ["", "## How sure, and what would settle it", ""]
+    if report.floor is not None:
+        L.append(f"- The model's own step accounts for {100 * report.floor.pooled:.2g} % of the calibrated model's "
+                 f"held-out squared error (Heun at the model step against a {report.floor.refine}x finer one); an "
+                 f"effect must remove more than twice that, and lower the error on every held-out segment where it "
+                 f"changes the prediction.")
+    s = report.sureness
+    if s:
+        behind = "accepted too" if s["runner_up_accepted"] else "not accepted"
+        L.append(f"- Runner-up: *{s['runner_up_title']}* ({behind}), {s['margin_bic_held']:.0f} behind in held-out "
+                 f"BIC and {s['margin_fit_points']:.1f} points of held-out fit.")
+    d = report.design
+    if d is not None:
+        e = d.excitation
+        L.append(f"- *{d.first}* and *{d.second}* predict this recording's held-out segments {d.on_recording:.1f} "
+                 f"transmitter-noise sd apart. A **{e.name}** ({e.shows}) separates them by {d.best:.1f} sd: "
+                 f"`separate.toml` is that test as a scenario; `samfdi simulate separate.toml --out DIR` runs it on "
+                 f"the model, the same [input] run on the machine and diagnosed settles it. Other tests: "
+                 + ", ".join(f"{k} {v:.1f} sd" for k, v in d.separation.items() if k != e.name) + ".")
+    if len(L) == 3:
+        return []
+    return L
 
 
 def _and(words: list[str]) -> str:
@@ -239,4 +273,6 @@ def write(report, out: Path, figures: bool = True) -> None:
     if figures:
         report.figures = globals()["figures"](report, out)
     (out / "report.json").write_text(json.dumps(to_json(report), indent=2))
+    if report.design is not None:
+        (out / "separate.toml").write_text(report.design.scenario_toml(report.plant_path, Path(report.source).name))
     (out / "report.md").write_text(to_markdown(report))

@@ -9,8 +9,9 @@ starting values costs one compiled call. Segments keep an open-loop integrator
 (the piston position) from drifting away over a long recording, which would
 otherwise dominate every comparison.
 
-Measurement-side effects (sensor lag, time delay) are applied to the simulated
-signals, never to the model: they are what the sensors do.
+Measurement-side effects (a transmitter lag, a delay of the pressure signals) are applied to the
+simulated pressures, never to the model: they are what the transmitters do. The position comes
+from an encoder or a linear transducer, which neither lags nor delays.
 """
 
 from __future__ import annotations
@@ -55,8 +56,9 @@ def _bristle_for_balance(x0, u0, params, a_meas, z_max):
 from .data import Prepared
 
 SIGNALS = ("pA", "pB", "x")
-_CHANNEL = {"pA": "p_A", "pB": "p_B", "x": "x"}
-#: Measurement-side parameters: not plant parameters, applied to the simulated signals.
+#: The signals the measurement-side parameters act on: the pressure transmitters.
+TRANSMITTED = ("pA", "pB")
+#: Measurement-side parameters: not plant parameters, applied to the simulated pressures.
 MEAS_PARAMS = ("tau_sensor", "delay_sensor")
 #: Floors of the per-signal scales (a signal that barely moves is weighted by its noise, not by zero).
 SCALE_FLOOR = {"pA": 1e5, "pB": 1e5, "x": 2e-3}
@@ -74,8 +76,9 @@ class SegmentSimulator:
     """Simulates :class:`Prepared` data segment by segment for batches of parameter vectors."""
 
     def __init__(self, data: Prepared, seg_s: float = 1.0, skip_s: float = 0.03, max_eval: int = 5000,
-                 held_out_every: int = 3, all_held_out: bool = False):
+                 held_out_every: int = 3, all_held_out: bool = False, scheme: str = "heun"):
         self.data = data
+        self.scheme = scheme
         n = data.n
         L = max(10, int(round(seg_s / data.dt)))
         n_seg = max(1, n // L)
@@ -97,7 +100,7 @@ class SegmentSimulator:
         # measured signals at the evaluation points: (n_seg, n_eval)
         idx = self.sample_index()
         self.meas = {k: data.y[k][idx] for k in SIGNALS}
-        self.mask = {k: data.valid[k][idx] for k in SIGNALS}
+        self.mask = {k: data.scored[k][idx] for k in SIGNALS}
         # input per segment, with sub-steps
         uu = np.stack([data.u[s:s + L] for s in starts])
         self.u_seg = np.repeat(uu, data.n_sub, axis=1)
@@ -118,25 +121,26 @@ class SegmentSimulator:
     def _measured_start(self, meas: np.ndarray | None, m: int) -> dict[str, np.ndarray]:
         """Smoothed measured pA, pB, x, v, a at each segment start, (m * n_seg,) each.
 
-        Under a measurement-side hypothesis the measured value at the start is not the state: with a
-        delay d the state at t is what the sensors show at t + d; with a first-order lag tau the state is
+        Under a measurement-side hypothesis the measured pressure at the start is not the state: with a
+        delay d the state at t is what the transmitters show at t + d; with a first-order lag tau it is
         y_m + tau dy_m/dt. Starting each segment from the state the hypothesis implies keeps the segment
         start-up from being mistaken for (or credited to) another effect.
         """
         d, st = self.data, self.seg.starts
         sm = d.smooth
-        rates = {"pA": "dpA", "pB": "dpB", "x": "v", "v": "a", "a": None}
+        keys = ("pA", "pB", "x", "v", "a")
         if meas is None or not np.any(meas):
-            return {k: np.tile(sm[k][st], m) for k in rates}
+            return {k: np.tile(sm[k][st], m) for k in keys}
         idx = np.arange(d.n, dtype=float)
-        out = {k: np.empty((m, len(st))) for k in rates}
+        out = {k: np.tile(sm[k][st], (m, 1)) for k in keys}
+        rates = {"pA": "dpA", "pB": "dpB"}
         for i in range(m):
             tau, delay = meas[i]
             pos = np.minimum(st + max(delay, 0.0) / d.dt, d.n - 1)
-            for k, rk in rates.items():
+            for k in TRANSMITTED:
                 val = np.interp(pos, idx, sm[k])
-                if tau > 0 and rk is not None:
-                    val = val + tau * np.interp(pos, idx, sm[rk])
+                if tau > 0:
+                    val = val + tau * np.interp(pos, idx, sm[rates[k]])
                 out[k][i] = val
         return {k: v.reshape(-1) for k, v in out.items()}
 
@@ -199,13 +203,13 @@ class SegmentSimulator:
                 segs = np.broadcast_to(segs, (m, n_seg, L)).reshape(m * n_seg, L)
                 tv[k] = np.repeat(segs, self.data.n_sub, axis=1)
         res = simulate_batch(P_all, u, self.data.dt / self.data.n_sub, x0=x0, time_varying=tv,
-                             record_at=self.record_at, channels=channels)
+                             record_at=self.record_at, channels=channels, scheme=self.scheme)
         out = {}
         names = {"p_A": "pA", "p_B": "pB", "x": "x"}
         for ch in channels:
             y = res[ch].reshape(m, n_seg, L)
             key = names.get(ch, ch)
-            if meas is not None and key in SIGNALS:
+            if meas is not None and key in TRANSMITTED:
                 y = y.copy()
                 for i in range(m):
                     tau, delay = meas[i]
@@ -221,6 +225,11 @@ class SegmentSimulator:
             out[key] = y if full else y[:, :, self.seg.eval_idx]
         self.last_cavitated = res.cavitated.reshape(m, n_seg).any(axis=1)
         return out
+
+    def unscore(self, segments: np.ndarray) -> None:
+        """Score nothing of these segments (bool, (n_seg,)): their error is not the model's."""
+        for k in SIGNALS:
+            self.mask[k][segments, :] = False
 
     # ------------------------------------------------------------------ residuals
     def residuals(self, sim: dict[str, np.ndarray], part: str = "fit") -> np.ndarray:

@@ -53,15 +53,26 @@ def metering_area(travel, lap, knee, exponent):
 
 
 @jit
+def in_series(k_edge, k_port):
+    """The coefficient [m^3/(s Pa^0.5)] of a metering edge ``k_edge`` in series with a fixed port
+    restriction ``k_port`` (inf: none): two orifices share the pressure drop, so
+    1 / k^2 = 1 / k_edge^2 + 1 / k_port^2, and the flow saturates at k_port sqrt(dp) as the edge opens."""
+    if k_port == math.inf or k_edge == 0.0:
+        return k_edge
+    return k_edge * k_port / math.sqrt(k_edge * k_edge + k_port * k_port)
+
+
+@jit
 def valve_flows(x_s, p_A, p_B, p_S, c):
     """Eqs. (10)-(14): (Q_A, Q_B, Q_P) [m^3/s], the valve's flows into chambers A and B and the flow
     it draws from the supply line at p_S, at spool position x_s plus the offset."""
     x_o = x_s + c[C.offset]
     knee, expo, dp_l, p_T = c[C.notch_knee], c[C.notch_exponent], c[C.dp_laminar], c[C.p_T]
-    q_PA = orifice(c[C.K_PA] * metering_area(x_o, c[C.lap_PA], knee, expo), p_S - p_A, dp_l)
-    q_BT = orifice(c[C.K_BT] * metering_area(x_o, c[C.lap_BT], knee, expo), p_B - p_T, dp_l)
-    q_PB = orifice(c[C.K_PB] * metering_area(-x_o, c[C.lap_PB], knee, expo), p_S - p_B, dp_l)
-    q_AT = orifice(c[C.K_AT] * metering_area(-x_o, c[C.lap_AT], knee, expo), p_A - p_T, dp_l)
+    port, full = c[C.port], c[C.full_area]  # the area stops growing once the notch uncovers its whole port
+    q_PA = orifice(in_series(c[C.K_PA] * min(metering_area(x_o, c[C.lap_PA], knee, expo), full), port), p_S - p_A, dp_l)
+    q_BT = orifice(in_series(c[C.K_BT] * min(metering_area(x_o, c[C.lap_BT], knee, expo), full), port), p_B - p_T, dp_l)
+    q_PB = orifice(in_series(c[C.K_PB] * min(metering_area(-x_o, c[C.lap_PB], knee, expo), full), port), p_S - p_B, dp_l)
+    q_AT = orifice(in_series(c[C.K_AT] * min(metering_area(-x_o, c[C.lap_AT], knee, expo), full), port), p_A - p_T, dp_l)
     Q_A, Q_B, Q_P = q_PA - q_AT, q_PB - q_BT, q_PA + q_PB
     lands = land_leakage_share(x_o, c[C.leak_band], c[C.leak_taper])
     if lands > 0.0:  # Eqs. (13)-(14): laminar leakage of the lands near centre

@@ -117,6 +117,8 @@ class C(IntEnum):
     reduced_mass_motion = 67  #: 1.0: the boom moves as Eq. (19) says, without Eq. (7)'s R-dot term
     leak_taper = 68  #: 1, the outer fraction of the null-leakage band over which it fades
     spool_sliding = 69  #: 1, a sticking spool's sliding friction as a share of its breakaway
+    port = 70  #: m^3/(s Pa^0.5), a fixed restriction in series with each metering edge (inf: none)
+    full_area = 71  #: 1, the open fraction at which a notch has uncovered its whole port (1: full travel)
 
 
 N_CONSTANTS = len(C)

@@ -82,6 +82,11 @@ class Effects:
     # a progressive notch: below the knee the open area grows as knee (a / knee)^exponent
     notch_knee: float = knob(0.0, 0.0, 1.0)  #: 1, opening where the notch ends; 0: none
     notch_exponent: float = knob(2.0, 1.0, 4.0)  #: 1
+    #: m^3/s, a port restriction in series with each metering edge, passing this at the edge's dp_N
+    #: fully open by itself; inf: none. The valve's flow saturates at it as the spool opens.
+    port_flow_m3_s: float = knob(math.inf, 0.0, open_lo=True)
+    #: 1, the opening at which a notch has uncovered its whole port: its area grows no further
+    full_area_opening: float = knob(1.0, 0.0, 1.0, open_lo=True)
     hysteresis_V: float = knob(0.0, 0.0, 2.0)  #: V, width of the play between command and spool
     spool_stiction: float = knob(0.0, 0.0, 0.2)  #: 1, spool-position error that breaks a resting spool free
     spool_sliding_share: float = knob(0.5, 0.0, 1.0)  #: 1, its sliding friction over its breakaway

@@ -11,7 +11,8 @@ the batch simulator, the global sensitivity analysis and the Unscented Kalman Fi
 Public face:
 
 * parameters: :class:`Plant` and its groups, :func:`load_plant`, the flat
-  vector layout :data:`P` / :data:`PARAM_NAMES`;
+  vector layout :data:`P` / :data:`PARAM_NAMES`; what of a plant is uncertain,
+  :class:`Uncertain` (``plant.uncertain``);
 * the model: :data:`S` (state layout), :func:`step` (:data:`SCHEMES`), :func:`step_batch`
   (:func:`step_batch_inplace`), :func:`rhs`,
   :func:`stroke_ends` (the end stops);
@@ -27,7 +28,7 @@ from .dynamics import (
 from .errors import UserError
 from .params import (
     P, PARAM_NAMES, Boom, Cylinder, Disturbances, Effects, Faults, Fluid, Friction, Plant,
-    Supply, Valve,
+    Supply, Uncertain, Valve,
 )
 from .plant import default_plant_path, load_plant
 from .recording import Recording, RecordingError, read_recording, write_recording
@@ -38,7 +39,7 @@ __all__ = [
     "DT_DEFAULT", "LEAK_REFERENCE_DP", "LPM", "D", "N_SCRATCH", "N_STATES", "SCHEMES", "S", "Scheme", "derive",
     "euler_step", "step",
     "rhs", "step_batch", "step_batch_inplace", "stroke_ends", "UserError", "P", "PARAM_NAMES", "Boom", "Cylinder", "Disturbances",
-    "Effects", "Faults", "Fluid", "Friction", "Plant", "Supply", "Valve", "default_plant_path",
+    "Effects", "Faults", "Fluid", "Friction", "Plant", "Supply", "Uncertain", "Valve", "default_plant_path",
     "load_plant", "Recording", "RecordingError", "read_recording", "write_recording",
     "BatchResult", "initial_state", "simulate_batch", "Scenario", "load_scenario", "run_scenario",
 ]

@@ -139,8 +139,44 @@ class Disturbances:
 
 
 @dataclass(frozen=True)
+class Uncertain:
+    """The plant parameters its owner does not know exactly, each with the range [low, high] (SI) it
+    lies in: the ``[uncertain]`` section of a plant file. What commissioning would fix (the load,
+    the boom geometry, the valve's flows, B_eff): the mismatch diagnosis calibrates them within
+    these ranges, and the fault detector may treat them as nuisance. Faults are not here.
+
+    ``ranges``: ((flat plant name, low, high), ...) in the order given.
+    """
+
+    ranges: tuple[tuple[str, float, float], ...] = ()
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(name for name, _, _ in self.ranges)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.names
+
+    def __getitem__(self, name: str) -> tuple[float, float]:
+        """(low, high) of parameter ``name``; KeyError when it is not uncertain."""
+        for key, lo, hi in self.ranges:
+            if key == name:
+                return lo, hi
+        raise KeyError(f"{name} is not an uncertain parameter of this plant")
+
+    def __len__(self) -> int:
+        return len(self.ranges)
+
+    def box(self, names=None) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) arrays of ``names`` (default: all, in order): the box to search or draw from."""
+        names = self.names if names is None else tuple(names)
+        bounds = np.array([self[name] for name in names], dtype=np.float64).reshape(len(names), 2)
+        return bounds[:, 0], bounds[:, 1]
+
+
+@dataclass(frozen=True)
 class Plant:
-    """Everything the model needs about one machine."""
+    """Everything the model needs about one machine, and what of it is uncertain."""
 
     name: str
     valve: Valve
@@ -151,6 +187,7 @@ class Plant:
     boom: Boom
     effects: Effects = field(default_factory=Effects)
     equations: Equations = field(default_factory=Equations)
+    uncertain: Uncertain = field(default_factory=Uncertain)
 
     def replace(self, **values: float) -> "Plant":
         """A copy with parameters changed by their flat name, e.g. ``replace(B_eff=1e9)``."""
@@ -171,7 +208,8 @@ class Plant:
 
 
 def _plant_groups() -> tuple[dataclasses.Field, ...]:
-    return tuple(f for f in dataclasses.fields(Plant) if f.name != "name")
+    """The parameter groups of a Plant: every field but its name and its uncertainty."""
+    return tuple(f for f in dataclasses.fields(Plant) if f.name not in ("name", "uncertain"))
 
 
 _GROUP_TYPES = {

@@ -2,7 +2,9 @@
 
 A plant file has one table per parameter group (``[valve]``, ``[supply]``,
 ``[cylinder]``, ``[fluid]``, ``[friction]``, ``[boom]``, optionally
-``[effects]`` and ``[equations]``), with SI values under the field names of :mod:`sam.params`.
+``[effects]`` and ``[equations]``), with SI values under the field names of :mod:`sam.params`,
+and optionally ``[uncertain]``: the parameters the owner does not know exactly, each with its range
+``name = [low, high]`` (:class:`sam.params.Uncertain`).
 A user's file needs only the keys it changes: everything else comes from the
 shipped default, ``scenarios/plants/sam.toml`` (Appendix 2 of the paper).
 Values are validated once, here; the model itself does not check them.
@@ -19,7 +21,7 @@ from typing import Any
 
 from .errors import UserError, did_you_mean, where
 from .params import (
-    Boom, Cylinder, Effects, Equations, Fluid, Friction, Plant, Supply, Valve,
+    PARAM_NAMES, Boom, Cylinder, Effects, Equations, Fluid, Friction, Plant, Supply, Uncertain, Valve,
 )
 
 _GROUPS = {
@@ -39,6 +41,11 @@ _NON_NEGATIVE = {
     "K_leak_PA", "K_leak_AT", "K_leak_PB", "K_leak_BT", "b", "r_B", "m_L", "m_R",
     "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p",
 }
+#: The table of uncertain parameters, and the groups whose parameters it may name: a machine's
+#: physical values (the spool offset is a fault input, estimated by the FDI, so it is not among them).
+UNCERTAIN = "uncertain"
+_UNCERTAIN_GROUPS = ("valve", "supply", "cylinder", "fluid", "friction", "boom")
+_NOT_UNCERTAIN = {"offset": "the spool offset is a fault input (the FDI estimates it), not a plant uncertainty"}
 #: Model settings that are switched on or off: true or false in a plant file.
 _SWITCHES = {"arm_rate_torque"}
 #: Angles [rad] read as radians within one turn either way: a larger value was meant in degrees.
@@ -111,7 +118,9 @@ def load_plant(path: str | Path | None = None, overrides: dict[str, Any] | None 
         own = overrides_source or source
         _merge(table, overrides, own)
         for group, values in overrides.items():
-            if group != "name":
+            if group == UNCERTAIN:
+                _checked_ranges(values, own)
+            elif group != "name":
                 _checked_group(group, values, own)
     return plant_from_table(table, source)
 
@@ -121,8 +130,8 @@ def _merge(base: dict, extra: dict, source: Path) -> None:
         if key == "name":
             base["name"] = value
             continue
-        if key not in _GROUPS:
-            raise UserError(f"{where(source, key)}: unknown table; expected one of {sorted(_GROUPS)}")
+        if key not in _GROUPS and key != UNCERTAIN:
+            raise UserError(f"{where(source, key)}: unknown table; expected one of {sorted([*_GROUPS, UNCERTAIN])}")
         if not isinstance(value, dict):
             raise UserError(f"{where(source, key)}: expected a table [{key}]")
         base.setdefault(key, {}).update(value)
@@ -140,7 +149,58 @@ def plant_from_table(table: dict[str, Any], source: str | Path = "<plant>") -> P
         groups[group] = cls(**values)
     plant = Plant(name=str(table.get("name", "plant")), **groups)
     _check_relations(plant, source)
-    return plant
+    return dataclasses.replace(plant, uncertain=_uncertain(table.get(UNCERTAIN, {}), plant, source))
+
+
+def _checked_ranges(values: Any, source) -> dict[str, tuple[float, float, bool]]:
+    """The ``[uncertain]`` table, name -> (low, high, relative): each key a machine parameter, each
+    value ``[low, high]`` in SI units valid for that parameter, or ``{ factor = [low, high] }``, factors
+    of the plant's own value (so a range follows a user's nominal value); low <= high. One-line
+    UserError otherwise."""
+    if not isinstance(values, dict):
+        raise UserError(f"{where(source, UNCERTAIN)}: expected a table [{UNCERTAIN}] of name = [low, high]")
+    known = {f.name: g for g in _UNCERTAIN_GROUPS for f in dataclasses.fields(_GROUPS[g])}
+    out = {}
+    for key, value in values.items():
+        field = f"{UNCERTAIN}.{key}"
+        if key in _NOT_UNCERTAIN:
+            raise UserError(f"{where(source, field)}: {_NOT_UNCERTAIN[key]}")
+        if key not in known:
+            raise UserError(f"{where(source, field)}: not a parameter of the machine{did_you_mean(key, known)}")
+        relative = isinstance(value, dict)
+        if relative:
+            if set(value) != {"factor"}:
+                raise UserError(f"{where(source, field)}: expected {{ factor = [low, high] }}, got {value!r}")
+            value, field = value["factor"], f"{field}.factor"
+        if not isinstance(value, list) or len(value) != 2:
+            raise UserError(f"{where(source, field)}: expected [low, high] "
+                            f"{'factors' if relative else 'in SI units'}, got {value!r}")
+        if relative:
+            lo, hi = (_check_value(source, UNCERTAIN, "factor", v) for v in value)
+            if not lo > 0:
+                raise UserError(f"{where(source, field)}: factors must be > 0, got {lo:g}")
+        else:
+            lo, hi = (_check_value(source, known[key], key, v) for v in value)
+        if not lo <= hi:
+            raise UserError(f"{where(source, field)}: low {lo:g} is above high {hi:g}")
+        out[key] = (lo, hi, relative)
+    return out
+
+
+def _uncertain(values: Any, plant: Plant, source) -> Uncertain:
+    """The checked ranges in SI units, each holding the plant's own (nominal) value; a range of zero
+    width marks the parameter as known and is dropped."""
+    ranges = []
+    nominal = dict(zip(PARAM_NAMES, plant.vector()))
+    for key, (lo, hi, relative) in _checked_ranges(values, source).items():
+        if relative:
+            lo, hi = sorted((float(lo * nominal[key]), float(hi * nominal[key])))
+        if not lo <= nominal[key] <= hi:
+            raise UserError(f"{where(source, f'{UNCERTAIN}.{key}')}: the plant's {key} = {nominal[key]:g} lies "
+                            f"outside its range [{lo:g}, {hi:g}]; widen the range or change the value")
+        if lo < hi:
+            ranges.append((key, lo, hi))
+    return Uncertain(tuple(ranges))
 
 
 def _checked_group(group: str, values: dict[str, Any], source) -> dict[str, float]:

@@ -106,6 +106,32 @@ def test_a_progressive_notch_meters_less_near_null():
     assert metering_area(0.5, 0.0, 0.08, 2.0) == pytest.approx(0.5)
 
 
+def test_a_port_restriction_in_series_saturates_the_flow_as_the_spool_opens():
+    """Each metering edge in series with a port that passes port_flow at dp_N fully open by itself:
+    1 / k^2 = 1 / k_edge^2 + 1 / k_port^2. At full opening with 24 L/min edges and a 10 L/min port,
+    P->A passes 24 x 10 / sqrt(24^2 + 10^2) = 9.23 L/min at 3.5 MPa; barely opened, the edge alone
+    sets the flow; without a port the valve is the plant's."""
+    lpm = 1.0 / 60000
+    c = _machine(port_flow_m3_s=10.0 * lpm)
+    plain = _machine()
+    full = valve_flows(1.0, 6.5e6, 0.0, 10e6, c)[0] / lpm
+    assert full == pytest.approx(24.0 * 10.0 / math.hypot(24.0, 10.0), rel=1e-3)
+    assert valve_flows(1.0, 6.5e6, 0.0, 10e6, plain)[0] / lpm == pytest.approx(24.0, rel=1e-3)
+    small = (valve_flows(0.05, 6.5e6, 0.0, 10e6, c)[0], valve_flows(0.05, 6.5e6, 0.0, 10e6, plain)[0])
+    assert small[0] / small[1] == pytest.approx(10.0 / math.hypot(1.2, 10.0), rel=1e-3)
+
+
+def test_a_notch_that_has_uncovered_its_port_meters_no_more():
+    """With full_area_opening 0.4 every edge's area stops at 40 %: at 10 V P->A passes what 4 V does,
+    0.4 x 24 L/min at 3.5 MPa; below 40 % the valve is the plant's."""
+    lpm = 1.0 / 60000
+    c = _machine(full_area_opening=0.4)
+    plain = _machine()
+    assert valve_flows(1.0, 6.5e6, 0.0, 10e6, c)[0] / lpm == pytest.approx(0.4 * 24.0, rel=1e-3)
+    assert valve_flows(1.0, 6.5e6, 0.0, 10e6, c)[0] == valve_flows(0.4, 6.5e6, 0.0, 10e6, plain)[0]
+    assert valve_flows(0.3, 6.5e6, 0.0, 10e6, c)[0] == valve_flows(0.3, 6.5e6, 0.0, 10e6, plain)[0]
+
+
 def test_a_pump_limited_supply_droops_and_limits_the_speed():
     """A 10 L/min pump with its relief valve at the plant's 10 MPa: idle, the line sits where the
     relief passes the pump's flow less the valve's null leakage; at 10 V the valve asks for more

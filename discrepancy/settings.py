@@ -1,0 +1,43 @@
+"""Every knob of the mismatch diagnosis, once: :class:`Settings`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Settings:
+    """How the diagnosis simulates, calibrates and decides. The defaults are what docs/mismatch.md
+    measures; a caller changes one with ``dataclasses.replace``."""
+
+    #: the model's step (sam.dynamics.step): Heun at 1 ms is the estimation default, its
+    #: discretisation error below the sensor noise on rig recordings (docs/rig.md); Eq. (22)'s
+    #: Euler at 1 ms errs as much as the effects the diagnosis looks for
+    scheme: str = "heun"
+    #: the longest model step [s]; recordings sampled slower are simulated in sub-steps
+    max_step_s: float = 1e-3
+    #: keep Eq. (7)'s R-dot term (docs/model.md, "Motion"): a real boom has it
+    arm_rate_torque: bool = True
+    #: least-squares evaluations of the calibration
+    calibration_nfev: int = 60
+    #: m/s: samples faster than this enter the force-balance start of the load and the level angle
+    commissioning_min_speed: float = 0.01
+    #: fewer moving samples than this: no force-balance start (the nominal values are the start)
+    commissioning_min_samples: int = 300
+    #: m: samples this close to an end stop are a known gap of the model's form (gap_mask)
+    stop_band_m: float = 2e-3
+    #: Pa: samples with a chamber below this pressure are one too (cavitation, transmitters clipped at 0)
+    low_pressure_Pa: float = 0.2e6
+    #: s: and so are the samples this long after either (the impact's ringing, the void closing)
+    gap_hold_s: float = 0.05
+    #: the step floor's finer step is the model's step over this (discrepancy.floor)
+    floor_refine: int = 4
+    #: an effect must remove more than this many times the step floor of the held-out error
+    floor_margin: float = 2.0
+    #: a segment counts as the effect's regime when its change of the prediction exceeds this over the
+    #: segment's effective samples (in shares of its squared error): below, noise alone could move it
+    noise_factor: float = 4.0
+    #: s: the segment starts are moved by this either way to find the segments the start decides
+    start_shift_s: float = 0.005
+    #: ...and a segment whose squared error that changes by more than this share is not scored
+    start_sensitive_share: float = 1.0
