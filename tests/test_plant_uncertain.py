@@ -45,7 +45,7 @@ def test_a_factor_range_follows_the_users_nominal_value(tmp_path):
 
 def test_a_range_of_zero_width_marks_a_parameter_known(tmp_path):
     path = tmp_path / "known.toml"
-    path.write_text("[uncertain]\ntheta_level = [1.1557963267948965, 1.1557963267948965]\n")
+    path.write_text("[uncertain]\ntheta_level = [0.415, 0.415]\n")  # the default plant's value
     assert "theta_level" not in sam.load_plant(path).uncertain
 
 
