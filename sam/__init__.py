@@ -21,10 +21,7 @@ Public face:
 """
 
 from .constants import DT_DEFAULT, LEAK_REFERENCE_DP, LPM
-from .dynamics import (
-    D, N_SCRATCH, N_STATES, SCHEMES, S, Scheme, derive, euler_step, rhs, step, step_batch, step_batch_inplace,
-    stroke_ends,
-)
+from .dynamics import D, N_SCRATCH, N_STATES, SCHEMES, S, Scheme, derive, euler_step, rhs, step, stroke_ends
 from .errors import UserError
 from .params import (
     P, PARAM_NAMES, Boom, Cylinder, Disturbances, Effects, Faults, Fluid, Friction, Plant,
@@ -32,6 +29,7 @@ from .params import (
 )
 from .plant import default_plant_path, load_plant
 from .recording import Recording, RecordingError, read_recording, write_recording
+from .row_step import step_batch, step_batch_inplace
 from .scenario import Scenario, load_scenario, run_scenario
 from .simulate import BatchResult, initial_state, simulate_batch
 

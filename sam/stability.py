@@ -4,7 +4,7 @@ The model advances by one explicit step (Eq. (22), :func:`sam.dynamics.euler_ste
 Near a state s the step is the map s -> s + J (s' - s); a disturbance grows from
 step to step when the spectral radius of J exceeds 1. :func:`step_growth` measures
 that radius on the step itself (central differences through
-:func:`sam.dynamics.step_batch`), so the semi-implicit pressure treatment is
+:func:`sam.row_step.step_batch`), so the semi-implicit pressure treatment is
 accounted for exactly as the simulator runs it. For the paper's plant the
 radius is 1 (the position integrates) up to dt = 15.9 ms, where the spool's
 second-order mode (omega_n = 126 rad/s, zeta = 1: 2 zeta / omega_n) goes
@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .dynamics import N_STATES, S, step_batch, stroke_ends
+from .dynamics import N_STATES, S, stroke_ends
+from .row_step import step_batch
 from .hydraulics import flow_coefficient
 from .params import P
 from .simulate import initial_state
