@@ -24,7 +24,7 @@ from .hydraulics import (
     chamber_pressure, free_air_equilibrium, leak_flows, oil_for_pressure, specific_volume, supply_line_flow,
     valve_flows,
 )
-from .layout import N_STATE, C, R
+from .layout import N_STATE, P_VAPOUR, C, R
 from .mechanics import (
     gravity_torque, inertia, joint_angle, lugre, piston_position, seal_friction_levels, spool_acceleration,
     stop_force, torque_arm, torque_arm_slope,
@@ -109,8 +109,10 @@ def initial_state(c: np.ndarray, x0: float) -> np.ndarray:
 
     Each chamber's pressure is where the null leakage in and out of it balances (Eqs. (13)-(14)
     with no flow), except that away from the retracted stop chamber A holds the load; on the stop
-    (x0 = 0) the contact carries what the pressures do not, compressed by that force. The free air
-    is at its equilibrium, the bristles relaxed, the supply line at p_S.
+    (x0 = 0) the contact carries what the pressures do not, compressed by that force. A load that
+    pulls the piston out harder than the rod side's pressure resists leaves chamber A at the oil's
+    vapour pressure and chamber B carrying it. The free air is at its equilibrium, the bristles
+    relaxed, the supply line at p_S.
     """
     p_S, p_T = c[C.p_S], c[C.p_T]
     p_A = _null_balance(c[C.KL_PA], c[C.KL_AT], p_S, p_T)
@@ -120,6 +122,8 @@ def initial_state(c: np.ndarray, x0: float) -> np.ndarray:
         load = _load_force(c, x)
         if x0 > 0.0:
             p_A = (p_B * c[C.A_B] + load) / c[C.A_A]
+            if p_A < P_VAPOUR:  # pulled out: the rod side holds the load
+                p_A, p_B = P_VAPOUR, (P_VAPOUR * c[C.A_A] - load) / c[C.A_B]
             break
         x = -max(load - (p_A * c[C.A_A] - p_B * c[C.A_B]), 0.0) / c[C.k_stop]
     y = np.zeros(N_STATE)

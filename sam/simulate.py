@@ -20,6 +20,7 @@ from .dynamics import (
     DERIVE_INPUTS, FLAG_CAVITATION, LANES, N_DERIVED, N_PARAMS, N_STATES, SCHEMES, S, areas, derive_geometry,
     derive_machine, kernel_variant, step_lanes,
 )
+from .constants import P_CAVITATION
 from .geometry import external_force
 from .params import P
 
@@ -187,7 +188,10 @@ def initial_state(params: np.ndarray, x: float | np.ndarray = 0.0) -> np.ndarray
     Eq. (14) with zero flow: the valve has been centred for a long time. On the
     retracted end stop (x = 0) chamber A settles the same way (Eq. (13)), and the
     stop carries whatever load the pressures do not. Away from the stop chamber A
-    instead holds the load: ``p_A A_A = p_B A_B + F_ext``.
+    instead holds the load: ``p_A A_A = p_B A_B + F_ext``. A load that pulls the
+    piston out harder than that rod-side pressure can resist (a boom past vertical)
+    would need p_A below the cavitation floor; there chamber A sits at the floor
+    and chamber B carries the load: ``p_B A_B = P_CAVITATION A_A - F_ext``.
     """
     p = np.atleast_2d(params)
     x = np.broadcast_to(np.asarray(x, dtype=float), (p.shape[0],))
@@ -199,6 +203,9 @@ def initial_state(params: np.ndarray, x: float | np.ndarray = 0.0) -> np.ndarray
         p[:, P.r_B], p[:, P.m_L], p[:, P.m_R], p[:, P.L],
     ) + p[:, P.F_d]
     p_A = np.where(x > 0.0, (p_B * A_B + F_ext) / A_A, p_A)
+    pulled = p_A < P_CAVITATION  # only away from the stop: the null-leak divider is above the floor
+    p_B = np.where(pulled, (P_CAVITATION * A_A - F_ext) / A_B, p_B)
+    p_A = np.where(pulled, P_CAVITATION, p_A)
     s = np.zeros((p.shape[0], N_STATES))
     s[:, S.p_A], s[:, S.p_B], s[:, S.x] = p_A, p_B, x
     return s if np.ndim(params) == 2 else s[0]

@@ -13,7 +13,7 @@ from scipy.optimize import brentq
 
 import sam
 from sam import P, S
-from sam.constants import LPM
+from sam.constants import LPM, P_CAVITATION
 from sam.dynamics import D, N_DERIVED, derive, rhs
 from sam.friction import stribeck
 from sam.geometry import external_force, joint_angle, piston_position, torque_arm
@@ -151,6 +151,34 @@ def test_centred_valve_drifts_only_by_null_leakage():
     p_tight = PLANT.replace(m_L=800.0, K_leak_PA=0.0, K_leak_AT=0.0, K_leak_PB=0.0, K_leak_BT=0.0).vector()
     held = run(p_tight, 0.0, 2.0, x0=sam.initial_state(p, x0))
     assert abs(held["x"][0, -1] - x0) < 1e-6
+
+
+@settings(max_examples=40, deadline=None)
+@given(x=st.floats(1e-3, 0.43), m_L=st.floats(0.0, 800.0))
+def test_the_start_at_rest_balances_the_load_without_cavitating(x, m_L):
+    """At rest with the valve centred, anywhere on the stroke and for loads 0-800 kg: the chambers
+    balance the boom exactly (p_A A_A - p_B A_B = F_ext, Eq. (21)), neither below the cavitation
+    floor; one chamber sits at its null-leakage pressure, the other carries the load."""
+    p = PLANT.replace(m_L=m_L).vector()
+    s = sam.initial_state(p, x)
+    d = derived(p)
+    force = s[S.p_A] * d[D.A_A] - s[S.p_B] * d[D.A_B]
+    assert force == pytest.approx(boom_force(p, x), rel=1e-9, abs=1e-6)
+    assert min(s[S.p_A], s[S.p_B]) >= P_CAVITATION
+    null = sam.initial_state(p, 0.0)  # on the stop both chambers sit at their null-leakage pressures
+    assert s[S.p_B] == null[S.p_B] or s[S.p_A] == P_CAVITATION
+
+
+def test_a_boom_past_vertical_is_held_by_the_rod_side():
+    """Past vertical (default plant, 800 kg at x = 0.42 m) the boom pulls the piston out; at rest
+    chamber A sits at the cavitation floor and chamber B holds the boom: with sealed chambers it
+    stays where it started."""
+    p = PLANT.replace(m_L=800.0, K_leak_PA=0.0, K_leak_AT=0.0, K_leak_PB=0.0, K_leak_BT=0.0).vector()
+    assert boom_force(p, 0.42) < 0.0  # pulling
+    s = sam.initial_state(p, 0.42)
+    assert s[S.p_A] == P_CAVITATION and s[S.p_B] > sam.initial_state(p, 0.0)[S.p_B]
+    held = run(p, 0.0, 1.0, x0=s)
+    assert abs(held["x"][0, -1] - 0.42) < 1e-6
 
 
 def linearised_frequency_hz(p, s, u):
