@@ -154,11 +154,15 @@ def test_the_single_precision_exponential_is_within_two_ulp():
 
 def test_single_precision_follows_double_within_its_rounding():
     """The float32 kernel (the GSA's option) follows the float64 one over 2 s of the paper's batch:
-    pressures within 0.5 % of the supply, velocity within 1 % of its range."""
+    pressures within 0.5 % of the supply, velocity within 1 % of its range away from the end
+    stops (where the step sets v to zero, rounding can move an arrival by one step)."""
     params, x0 = _batch(40, seed=6)
     u = _input(2000)
     a = sam.simulate_batch(params, u, DT, x0=x0, record_every=10)
     b = sam.simulate_batch(params, u, DT, x0=x0, record_every=10, precision="float32")
     for c in ("p_A", "p_B"):
         assert np.max(np.abs(a[c] - b[c])) < 0.005 * PLANT.vector()[P.p_S]
-    assert np.max(np.abs(a["v"] - b["v"])) < 0.01 * np.ptp(a["v"])
+    x_end = sam.stroke_ends(params)[:, None]
+    free = (np.minimum(a["x"], b["x"]) > 1e-3) & (np.maximum(a["x"], b["x"]) < x_end - 1e-3)
+    assert np.count_nonzero(free) > free.size // 2  # most of the batch is off the stops
+    assert np.max(np.abs(a["v"] - b["v"])[free]) < 0.01 * np.ptp(a["v"])
