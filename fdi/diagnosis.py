@@ -121,7 +121,7 @@ def judge(out: FilterOutput, th: Thresholds, stats: Statistics | None = None, ba
     common = dict(margin=margin_for(th.confirmation.false_isolation_level), horizon_s=design.decision_window_s,
                   size=size, pairs=pairs, pair_horizon_s=design.pair_window_s,
                   confirm=confirm_evidence(th.confirmation.confirm_nats), hidden=held_on_stop(out, th),
-                  on_stop=on_end_stop(out), design=design)
+                  on_stop=on_end_stop(out), design=design, persist_s=th.confirmation.persist_s)
     decs = judge_alarms(out, stats, *first_alarms(stats, th.test.h), k_ready, rows=rows, k_stop=stop[rows], **common)
     todo = _withdraw(decs, decs)
     # the reference is causal: one run over each restarting run's whole record serves all its later episodes
