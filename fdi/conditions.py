@@ -14,7 +14,7 @@ from sam import P, S
 
 from .faults import PARAMS
 from .filter import FilterOutput, near_end_stop, sample_step
-from .states import I_OFFSET, I_X
+from .states import I_X
 from .strokes import directions, first_motion, long_strokes
 from .thresholds import Thresholds
 
@@ -85,32 +85,16 @@ def balanced(out: FilterOutput, th: Thresholds) -> np.ndarray:
     return np.abs(out.mean[:, :, S.p_A] - out.mean[:, :, S.p_B]) < th.regimes.balance_margin_Pa
 
 
-def at_null_edge(out: FilterOutput, th: Thresholds) -> np.ndarray:
-    """(B, T) bool: the spool (posterior x_s plus the offset estimate) within
-    ``null_edge_share`` of the null-leakage band's half-width of the band's edge (Eqs.
-    (13)-(14), :attr:`sam.P.leak_band`), where the model's valve flow steps and a real valve's
-    does not. All False without the rule or without measured data (``out.inp``)."""
-    share = th.regimes.null_edge_share
-    B, T = out.mean.shape[:2]
-    if share <= 0.0 or out.inp is None:
-        return np.zeros((B, T), dtype=bool)
-    band = out.inp.params[:, P.leak_band][:, None]
-    x_o = out.mean[:, :, S.x_s] + out.mean[:, :, I_OFFSET]
-    return np.abs(np.abs(x_o) - band) < share * band
-
-
 def held(out: FilterOutput, th: Thresholds) -> np.ndarray:
     """(B, 4, T) bool, PARAMS order: where each change test is held: its parameter unobservable
     with the pressures pinned (:data:`UNOBSERVABLE_PINNED`), the tests of :data:`HELD_ON_STOP`
-    resting on an end stop, K_int's where the pressures balance, and every test with the spool
-    at the null band's edge (:func:`at_null_edge`)."""
+    resting on an end stop, and K_int's where the pressures balance."""
     pin = pinned(out, th)
     hidden = np.stack([(pin[..., 0] & a) | (pin[..., 1] & b) for a, b in UNOBSERVABLE_PINNED.values()], axis=1)
     rest = resting_on_stop(out, th)
     for p in HELD_ON_STOP:
         hidden[:, list(PARAMS).index(p)] |= rest
     hidden[:, list(PARAMS).index("K_int")] |= balanced(out, th)
-    hidden |= at_null_edge(out, th)[:, None, :]
     return hidden
 
 

@@ -58,7 +58,6 @@ RANGES = {
     "transient_s": _DURATION,
     "pin_margin_Pa": (-1e12, 1e12, "a pressure margin in Pa (finite; below 0 nothing is pinned)"),
     "balance_margin_Pa": (0.0, 1e12, "a pressure difference in Pa (>= 0)"),
-    "null_edge_share": (0.0, 1.0, "a share of the null-leakage band (0-1; 0: no such rule)"),
     "long_stroke_s": (1e-3, 1e9, "a duration in seconds (> 0; leave it out for no long-stroke rule)"),
     "drift": (0.0, 1e3, "a CUSUM drift in sigma (>= 0)"),
     "long_stroke_drift": (0.0, 1e3, "a CUSUM drift in sigma (>= 0)"),
@@ -152,11 +151,6 @@ class Regimes:
     #: Pa: K_int's test is held where |p_A - p_B| is below this: a leak across the piston flows
     #: with the root of that difference, so there it carries almost nothing
     balance_margin_Pa: float = 0.4e6
-    #: 1: every test is held while the spool (the filter's x_s + offset) lies within this share of
-    #: the null-leakage band's half-width of the band's edge. Eqs. (13)-(14) switch the null
-    #: leakage off in one step there; a real valve's fades over a width nobody measured, and a
-    #: position loop holding a load parks the spool right there (the step is its equilibrium)
-    null_edge_share: float = 0.0
     #: s: None: no long-stroke rule. S: from S into an extension or retraction until S into the
     #: rest after it, the K_int and offset tests count only what exceeds ``long_stroke_drift``
     #: (there those estimates wander along directions the data hardly constrain)
