@@ -349,11 +349,12 @@ def test_not_isolable_names_the_other_member_of_each_leading_pair(pair_decisions
     assert single.naming.hypothesis == "K_int"
     d = replace(single, several=replace(single.several, members=(), revised=None,
                                         pair_candidates=("K_extA+K_int", "K_int+offset")))
-    diag = diagnose(out, Thresholds.shipped(), 2, stats, decision=d)
+    th = Thresholds.shipped()
+    diag = diagnose(out, th, 2, stats, decision=d)
     assert diag.status == "fault, not isolable"
     assert diag.isolated == ["K_int", "K_extA", "offset"]
     assert "the pairs K_extA+K_int, K_int+offset (" in diag.note
-    assert "lead every single fault by >= 20 nats" in diag.note
+    assert f"lead every single fault by >= {th.confirmation.confirm_nats:.3g} nats" in diag.note
 
 
 def test_fault_in_back_to_back_long_strokes_is_found_at_once():
