@@ -161,7 +161,7 @@ def at_the_stops(column: str, pos: np.ndarray, plant: Plant) -> np.ndarray:
     the accepted margin) moved onto the stop. The model's stops are inelastic, so the piston
     cannot be beyond one; a machine's stop gives under its load, and an encoder's zero is off by
     a part of a count: such a reading held on a stop would pull every state that moves the
-    piston (a held 0.04 mm below the retracted stop read as 3 L/min of K_extA and -8 % offset)."""
+    piston (docs/fdi.md, "On rig recordings")."""
     p = plant.vector()
     L = p[P.L_1], p[P.L_2], p[P.L_3]
     x_end = min(p[P.x_max], piston_position(p[P.theta_max], *L))

@@ -218,8 +218,8 @@ class Confirmation:
     #: nats: an alarm stands only when, within the bank's window after it, the best fault beats
     #: the healthy hypothesis by this much with its parameter moved by the smallest size of
     #: interest; otherwise it is withdrawn and the tests restart (0: every alarm stands)
-    #: 50, not 20: on development rig runs (docs/fdi.md, "On rig recordings") healthy episodes
-    #: where the model's form errs (a valve parked at its null band's edge) led by 25-31 nats
+    #: nats; healthy episodes where the model's form errs (a valve parked at its null band's edge)
+    #: lead by tens of nats on rig recordings (docs/fdi.md, "On rig recordings")
     confirm_nats: float = 50.0
     #: s: the confirming lead must also have grown over the last this long (0: not asked). A
     #: fault that is there keeps adding evidence; a healthy transient that the model's form
