@@ -121,7 +121,7 @@ def judge(out: FilterOutput, th: Thresholds, stats: Statistics | None = None, ba
     common = dict(margin=margin_for(th.confirmation.false_isolation_level), horizon_s=design.decision_window_s,
                   size=size, pairs=pairs, pair_horizon_s=design.pair_window_s,
                   confirm=confirm_evidence(th.confirmation.confirm_nats), hidden=held_on_stop(out, th),
-                  on_stop=on_end_stop(out), design=design)
+                  on_stop=on_end_stop(out), design=design, persist_s=th.confirmation.persist_s)
     decs = judge_alarms(out, stats, *first_alarms(stats, th.test.h), k_ready, rows=rows, k_stop=stop[rows], **common)
     todo = _withdraw(decs, decs)
     # the reference is causal: one run over each restarting run's whole record serves all its later episodes
@@ -316,6 +316,7 @@ def _alarm_record(out: FilterOutput, th: Thresholds, d: Decision) -> dict:
     t, s, confirm = out.t, d.standing, th.confirmation.confirm_nats
     rec = {"alarm_s": float(t[s.alarm]) if s.alarm >= 0 else None,
            "confirm_nats": confirm if confirm > 0 else None,
+           "confirm_persist_s": th.confirmation.persist_s if confirm > 0 and th.confirmation.persist_s > 0 else None,
            "confirmed_s": float(t[s.confirm_index]) if s.confirm_index >= 0 else None,
            "withdrawn_alarms_s": [float(t[k]) for k in d.withdrawn],
            "tests_restarted_s": [float(t[k]) for k in d.restarts if k < len(t)]}  # not at the record's end
@@ -329,9 +330,10 @@ def _withdrawn(out: FilterOutput, th: Thresholds, d: Decision, design: BankDesig
     rec = _alarm_record(out, th, d)
     times = ", ".join(f"{s:.3f}" for s in rec["withdrawn_alarms_s"])
     least = design.min_single_size
+    growing = f", that lead still growing over {rec['confirm_persist_s']:g} s," if rec["confirm_persist_s"] else ""
     note = (f"alarm(s) at t = {times} s withdrawn: in the {design.decision_window_s:g} s after each, no fault "
-            f"hypothesis explained the measurements better than the healthy model by {rec['confirm_nats']:.2g} nats "
-            f"with its fault parameter moved by at least {leak_lpm(least['K_int']):.2g} L/min or "
+            f"hypothesis explained the measurements better than the healthy model by {rec['confirm_nats']:.2g} nats"
+            f"{growing} with its fault parameter moved by at least {leak_lpm(least['K_int']):.2g} L/min or "
             f"{100 * least['offset']:.2g} % (largest lead {d.standing.lead_max:.1f} nats in the last window)")
     if d.episodes_capped:
         note += f"; the tests were not restarted after {rec['episodes_capped']} withdrawn alarms"

@@ -188,9 +188,20 @@ def last_shown(ll: np.ndarray, hidden: np.ndarray | None, k0: int, on_stop: np.n
     return np.where(shows, k, np.maximum.accumulate(np.where(off, k, -1)))
 
 
+def growing(lead: np.ndarray, persist: int) -> np.ndarray:
+    """(L,) bool per bank sample k: the lead (L,) [nats] is larger than ``persist`` samples before
+    (than 0, the bank's start, earlier on); all True for persist = 0. A fault that is there keeps
+    adding evidence; a transient the healthy model mispredicts adds it once, and the fault's
+    filter then mispredicts what follows, so its lead stalls or falls."""
+    if persist <= 0:
+        return np.ones(len(lead), dtype=bool)
+    before = np.concatenate([np.zeros(persist), lead[:-persist]]) if len(lead) > persist else np.zeros(len(lead))
+    return lead > before
+
+
 def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float = -math.inf,
            hidden: np.ndarray | None = None, conf: tuple | None = None, on_stop: np.ndarray | None = None,
-           k_alarm: int = -1, window_end: int = -1, design: BankDesign = DESIGN) -> Decision:
+           k_alarm: int = -1, window_end: int = -1, design: BankDesign = DESIGN, persist: int = 0) -> Decision:
     """The bank's decision for run i of ``bank``: the first sample k >= k_from at which the best
     fault beats every other fault by ``margin`` and "none" by ``confirm`` nats, its filter moved
     enough (causal: L_H(k) uses samples up to k). The alarm ``k_alarm`` stands if at some sample
@@ -201,7 +212,9 @@ def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float 
     (``on_stop`` (T,)). ``conf``: ((best, runner-up), L (2, L), L_none (L,)) from
     :func:`confirmation_bank`: the lead that confirms is then the best fault's over that bank's
     "none" (calibration as uncertain constants), and a fault is named only where that bank ranks
-    the pair as the naming bank does (there, holding the calibration would decide the name)."""
+    the pair as the naming bank does (there, holding the calibration would decide the name).
+    ``persist`` (samples): the lead that confirms must also be still growing over that many
+    samples (:func:`growing`; 0: not asked)."""
     names = list(bank.names)
     fi = [names.index(h) for h in FAULTS]
     nv = int(bank.n_valid[i])
@@ -212,16 +225,18 @@ def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float 
     srt = np.sort(ll[:, e], axis=0)
     agree = np.ones(len(e), dtype=bool)
     if conf is None:
-        lead = evidence(ll, bank.loglik[i, names.index("none"), :nv], hidden, int(bank.k0[i]))[e][start:]
+        lead = evidence(ll, bank.loglik[i, names.index("none"), :nv], hidden, int(bank.k0[i]))[e]
     else:
         pair, ll_c, ll_n = conf
         hid = None if hidden is None else hidden[[FAULTS.index(pair[0])]]
-        lead = evidence(ll_c[:1, :nv], ll_n[:nv], hid, int(bank.k0[i]))[e][start:]
+        lead = evidence(ll_c[:1, :nv], ll_n[:nv], hid, int(bank.k0[i]))[e]
         named_held = np.asarray(FAULTS)[np.argmax(ll[:, e], axis=0)]
         agree = named_held == np.asarray(pair)[np.argmax(ll_c[:, :nv][:, e], axis=0)]
+    lead, rising = lead[start:], growing(lead, persist)[start:]
     ok_move = (credible(bank, i, fi, ll, hidden, design)[e] & shown)[start:]
-    stood = np.flatnonzero((lead >= confirm) & (ok_move | (confirm == -math.inf)))  # -inf: every alarm stands
-    ok = np.flatnonzero((srt[-1, start:] - srt[-2, start:] >= margin) & ok_move & (lead >= confirm) & agree[start:])
+    strong = (lead >= confirm) & rising
+    stood = np.flatnonzero(strong & (ok_move | (confirm == -math.inf)))  # -inf: every alarm stands
+    ok = np.flatnonzero((srt[-1, start:] - srt[-2, start:] >= margin) & ok_move & strong & agree[start:])
     at = start + int(ok[0]) if len(ok) else nv - 1
     best = int(np.argmax(ll[:, e[at]]))
     llr = {h: float(ll[q, e[at]] - ll[best, e[at]]) for q, h in enumerate(FAULTS)}
@@ -323,7 +338,7 @@ def confirmation_bank(out: FilterOutput, ref: FilterOutput, bank: BankResult, ro
 
 def judge_alarms(out: FilterOutput, stats: Statistics, k_alarm: np.ndarray, who: tuple, k_ready, margin: float,
                  horizon_s, rows, k_stop, size: bool, pairs: bool, pair_horizon_s, confirm: float, hidden=None,
-                 reference=None, on_stop=None, design: BankDesign = DESIGN) -> dict:
+                 reference=None, on_stop=None, design: BankDesign = DESIGN, persist_s: float = 0.0) -> dict:
     """The first alarm of each run of ``rows`` (array), at k_alarm (B,) by the test ``who`` (B,)
     of ``stats`` (fdi.alarms.first_alarms), judged up to ``k_stop`` (one per row): run -> Decision. The stages: (1) the bank over every candidate onset up to its
     earliest decision; (2) for runs not yet decided, the bank over the whole window ([k0, alarm +
@@ -331,9 +346,11 @@ def judge_alarms(out: FilterOutput, stats: Statistics, k_alarm: np.ndarray, who:
     its onset over the window; (4) with ``pairs`` and a confirmed alarm, every single and pair
     restarted after the window up to ``pair_horizon_s`` after the alarm. ``k_ready``: a sample, or
     one per run (B,), before which no onset is estimated. ``reference``: (runs, their reference
-    filter output) already run far enough, or None to run it here."""
+    filter output) already run far enough, or None to run it here. ``persist_s``: how long the
+    confirming lead must have grown (:func:`growing`)."""
     dt = sample_step(out.t)
     T = out.mean.shape[1]
+    persist = int(round(persist_s / dt))
     keep = k_alarm[rows] >= 0
     rows, k_stop = rows[keep], k_stop[keep]
     if not len(rows):
@@ -359,7 +376,7 @@ def judge_alarms(out: FilterOutput, stats: Statistics, k_alarm: np.ndarray, who:
     def decisions(bank, sel, k_end, ref_rows=None):
         cb = confirmation_bank(out, ref, bank, rows[sel], k0[sel], k_end, ka[sel], kept, ref_rows, design)
         return [decide(bank, q, int(kd[i]), margin, confirm, hid(rows[i]), cb[q], stp(rows[i]), int(ka[i]), int(k1[i]),
-                       design) for q, i in enumerate(sel)]
+                       design, persist) for q, i in enumerate(sel)]
 
     everyone = np.arange(len(rows))
     bank = run_bank_starts(out, ref, rows, k0, k_a1, ka, later_none=not kept, design=design)

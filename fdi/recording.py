@@ -132,7 +132,8 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
         u = u[idx]
         u[~np.isfinite(u)] = 0.0
     sensor = "encoder" if column == "theta" else position_sensor or detect_position_sensor(rec, plant, checks)
-    inp = FilterInput(dt=rec.dt, u=u[None, :], pA=sig["pA"][None, :], pB=sig["pB"][None, :], pos=sig[column][None, :],
+    inp = FilterInput(dt=rec.dt, u=u[None, :], pA=sig["pA"][None, :], pB=sig["pB"][None, :],
+                      pos=at_the_stops(column, sig[column], plant)[None, :],
                       pos_kind=POS_X if column == "x" else POS_THETA, params=plant.vector()[None, :],
                       pS=sig["pS"][None, :] if "pS" in sig else None, position_sensor=sensor)
     return inp, InputReport(samples=rec.n, dt_s=rec.dt, position=column, supply_pressure_measured="pS" in sig,
@@ -153,6 +154,20 @@ def _drop(name: str, t, column: str, a: np.ndarray, bad: np.ndarray, unit: str, 
                         "them as missing samples")
     a[bad] = np.nan
     return int(bad.sum())
+
+
+def at_the_stops(column: str, pos: np.ndarray, plant: Plant) -> np.ndarray:
+    """The position column ("x" [m] or "theta" [rad]) with readings beyond an end stop (within
+    the accepted margin) moved onto the stop. The model's stops are inelastic, so the piston
+    cannot be beyond one; a machine's stop gives under its load, and an encoder's zero is off by
+    a part of a count: such a reading held on a stop would pull every state that moves the
+    piston (docs/fdi.md, "On rig recordings")."""
+    p = plant.vector()
+    L = p[P.L_1], p[P.L_2], p[P.L_3]
+    x_end = min(p[P.x_max], piston_position(p[P.theta_max], *L))
+    ends = (0.0, x_end) if column == "x" else tuple(sorted((joint_angle(0.0, *L), joint_angle(x_end, *L))))
+    with np.errstate(invalid="ignore"):  # NaN (missing) stays missing
+        return np.where(np.isfinite(pos), np.clip(pos, *ends), pos)
 
 
 def _outside_stroke(column: str, pos: np.ndarray, plant: Plant, margin: float) -> tuple[np.ndarray, str]:

@@ -67,6 +67,7 @@ RANGES = {
     "nis_limit": (0.0, 1e12, "a finite number >= 0 (a weighted NIS)"),
     "nis_hold_s": _DURATION,
     "confirm_nats": (0.0, 1e6, "an evidence in nats (>= 0; 0: every alarm stands)"),
+    "persist_s": (0.0, 10.0, "a duration in s (0-10; 0: not asked)"),
     "false_isolation_level": (1e-9, 1.0, "a rate of wrong isolations (0-1)"),
     "rebase_s": (1e-6, MAX_RUN_LENGTH_S, "a duration in seconds (> 0)"),
     "false_alarm_level": (1e-9, 1.0, "a rate of false alarms per healthy run (0-1)"),
@@ -217,7 +218,13 @@ class Confirmation:
     #: nats: an alarm stands only when, within the bank's window after it, the best fault beats
     #: the healthy hypothesis by this much with its parameter moved by the smallest size of
     #: interest; otherwise it is withdrawn and the tests restart (0: every alarm stands)
-    confirm_nats: float = 20.0
+    #: nats; healthy episodes where the model's form errs (a valve parked at its null band's edge)
+    #: lead by tens of nats on rig recordings (docs/fdi.md, "On rig recordings")
+    confirm_nats: float = 50.0
+    #: s: the confirming lead must also have grown over the last this long (0: not asked). A
+    #: fault that is there keeps adding evidence; a healthy transient that the model's form
+    #: mispredicts (a step out of a hold, a stop impact) adds it once, then stalls
+    persist_s: float = 0.3
     #: the stated probability that the named fault is not the one that produced the data: sets
     #: the likelihood margin (fdi.isolation.margin_for); not fitted to any run
     false_isolation_level: float = 0.01

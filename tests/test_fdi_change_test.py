@@ -441,7 +441,9 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     With the baseline learnt at rest instead of from the first motion, the two K_int ones
     false-alarm within 0.2 s of their first motion (checked below). Drawn on the former default
     plant, where the runs were picked (tests/stall_cases.py); on the default plant the same draws
-    do not false-alarm with the baseline learnt at rest either (issue 33: open)."""
+    do not false-alarm with the baseline learnt at rest either (issue 33: open). Judged with the
+    confirmation they were picked with (20 nats, no persistence): the shipped one (50 nats, the
+    lead still growing over 0.3 s) withdraws the baseline-at-rest alarms too."""
     from dataclasses import replace
 
     from sam import load_plant
@@ -451,7 +453,7 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
 
     from stall_cases import FORMER_PLANT
 
-    th = Thresholds.shipped()
+    th = Thresholds.shipped().with_(confirm_nats=20.0, persist_s=0.0)
     picks = {300001: 21, 300002: 18, 300004: 20}
     parts = [make_batch(load_plant(FORMER_PLANT), 25, seed, duration=th.derived.run_length_s, inputs="long_cycles").inp
              for seed in picks]

@@ -184,3 +184,27 @@ def test_thresholds_and_tune_simulate_the_sensor(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="captured"):
         tune.chunk_job(load_plant(), Thresholds.shipped("linear"), None, 0.0, 2, 1)
     assert seen["tune"] == "linear" and montecarlo.make_batch is not fake_batch
+
+
+def test_a_reading_beyond_an_end_stop_is_the_stop():
+    """at_the_stops: a machine's stop gives under its load and an encoder's zero is off by part of
+    a count, so a reading a little beyond a stop (here one 0.007 deg count below the retracted
+    angle, 0.04 mm of x, and 0.5 mm beyond the extension end) is the stop itself, for x and for
+    theta alike; readings inside the stroke, and missing ones, are left as they are."""
+    from sam import P
+    from sam.geometry import joint_angle, piston_position
+    from fdi.recording import at_the_stops
+
+    plant = load_plant()
+    p = plant.vector()
+    L = p[P.L_1], p[P.L_2], p[P.L_3]
+    x_end = min(p[P.x_max], piston_position(p[P.theta_max], *L))
+    count = np.deg2rad(0.007)
+    theta0 = joint_angle(0.0, *L)
+    x_below = piston_position(theta0 - count, *L)
+    assert -1e-4 < x_below < 0.0  # one count beyond the retracted stop: a few hundredths of a mm
+    x = np.array([x_below, 0.1, np.nan, x_end + 5e-4])
+    np.testing.assert_array_equal(at_the_stops("x", x, plant), [0.0, 0.1, np.nan, x_end])
+    theta = joint_angle(np.array([0.0, 0.1, x_end]), *L)
+    beyond = theta + np.sign(theta[-1] - theta[0]) * np.array([-count, 0.0, count])
+    np.testing.assert_allclose(at_the_stops("theta", beyond, plant), theta, rtol=0, atol=1e-12)
