@@ -111,14 +111,15 @@ def blocks_variant(p, n):
 def step_blocks(s, u, p, d, dt, flags, n, substeps=1, scheme=0, geometry=False, machine=False):
     """Advance rows 0..n-1 of lane blocks (s, u, p, d, flags) in place over ``dt`` [s]: the one
     step, :func:`sam.dynamics.step_lanes`, on each block (``substeps`` and ``scheme`` as there; the
-    defaults are Eq. (22) at ``dt``), its variant chosen over the n rows, flags ORed. First the
-    constants d are derived again from p where the caller has changed parameters they read since:
-    ``geometry`` and ``machine`` as :func:`derived_parts` gives them for those columns."""
-    if geometry or machine:
-        derive_blocks(p, d, n, geometry, machine)
+    defaults are Eq. (22) at ``dt``), its variant chosen over the n rows, flags ORed. Each block's
+    constants d are first derived again from p where the caller has changed parameters they read
+    since: ``geometry`` and ``machine`` as :func:`derived_parts` gives them for those columns."""
     leaks, effects = blocks_variant(p, n)
     for b in range((n + LANES - 1) // LANES):
-        step_lanes(s[b], u[b], p[b], d[b], dt, flags[b], _block_width(n, b), substeps, scheme, leaks, effects)
+        m = _block_width(n, b)
+        if geometry or machine:  # block by block: its arrays are still in the cache for its step
+            _derive_lanes(p[b], d[b], m, geometry, machine)
+        step_lanes(s[b], u[b], p[b], d[b], dt, flags[b], m, substeps, scheme, leaks, effects)
 
 
 @jit
