@@ -89,10 +89,10 @@ def _derive_lanes(p, d, m, geometry, machine):
     the arithmetic allows (the filter derives the machine's part of every sigma point each sample)."""
     p, d = fixed(p, N_PARAMS, LANES), fixed(d, N_DERIVED, LANES)
     if geometry:
-        for j in range(np.uint64(m)):
+        for j in range(np.uint64(m)):  # unsigned: no wrap-around of negative indices to vectorise
             derive_geometry(p, d, j)
     if machine:
-        for j in range(np.uint64(m)):  # unsigned: no wrap-around of negative indices to vectorise
+        for j in range(np.uint64(m)):
             derive_machine(p, d, j)
 
 
