@@ -1,4 +1,4 @@
-"""Replay speed: the batched UKF (one sam.step_batch call per step for all sigma
+"""Replay speed: the batched UKF (one sam.step_blocks call per sample for all sigma
 points) against a plain filterpy loop calling the model once per sigma point.
 
     PYTHONPATH=. python benchmarks/bench_fdi.py

@@ -1,12 +1,14 @@
-"""What the lane kernel gives the UKF: replay and batched filtering, this tree against another
-checkout (the code before the kernel), side by side in one run, alternated.
+"""What the model's step gives the UKF: replay and batched filtering, this tree against another
+checkout, side by side in one run, alternated.
 
-    git archive 5d9aea8 | tar -x -C /tmp/before      # the step before the lane kernel
-    python benchmarks/bench_kernel_fdi.py --before /tmp/before [--rounds 3]
+    git archive fb92257 | tar -x -C /tmp/before      # e.g. the filter before its lane blocks
+    python benchmarks/bench_kernel_fdi.py --before /tmp/before [--rounds 5]
 
-Each round runs, in a child process of each tree: one 4 s recording at 1 kHz replayed by the
-batched UKF (x real time, best of 3), and 100 recordings of 4 s filtered in one batch (ms per run,
-one core: the tune's work per run). Medians over the rounds, and the ratio.
+Each round runs, in a child process of each tree (their order swapped every round): one 4 s
+recording at 1 kHz filtered by the batched UKF (x real time, best of 3), and 100 recordings of
+4 s filtered in one batch (ms per run, one core: the tune's filter work per run), each by the
+wall clock and by the process's CPU time. Medians over the rounds, the ratios of the medians with
+the range of the rounds' ratios, and the load average before and after.
 """
 
 from __future__ import annotations
@@ -46,13 +48,15 @@ def child() -> None:
     run_filter(runs.inp), run_filter(mc.inp)  # compile / load the cache
 
     def timed(fn):
-        t0 = time.perf_counter()
+        """(wall, CPU) seconds of fn(): on a shared machine the CPU time is the steadier."""
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
-        return time.perf_counter() - t0
+        return np.array([time.perf_counter() - t0, time.process_time() - c0])
 
-    one = min(timed(lambda: run_filter(runs.inp)) for _ in range(3))
+    one = np.min([timed(lambda: run_filter(runs.inp)) for _ in range(3)], axis=0)
     batch = timed(lambda: run_filter(mc.inp))
-    print(json.dumps({"x_real_time": 4.0 / one, "ms_per_run": batch / 100 * 1e3}))
+    print(json.dumps({"x_real_time": 4.0 / one[0], "ms_per_run": batch[0] / 100 * 1e3,
+                      "x_real_time_cpu": 4.0 / one[1], "ms_per_run_cpu": batch[1] / 100 * 1e3}))
 
 
 def measure(tree: Path) -> dict:
@@ -64,24 +68,32 @@ def measure(tree: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--before", type=Path, help="a checkout of the code before the lane kernel")
-    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--before", type=Path, help="a checkout of the code to compare with (needed)")
+    ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         child()
         return
-    trees = {"before": args.before.resolve(), "lanes": ROOT}
+    if args.before is None:
+        ap.error("--before DIR is needed: a checkout of the code to compare with")
+    trees = {"before": args.before.resolve(), "this tree": ROOT}
     got = {k: [] for k in trees}
-    for _ in range(args.rounds):
-        for name, tree in trees.items():
-            got[name].append(measure(tree))
-    load = os.getloadavg()
-    print(f"load average {load[0]:.1f}; medians of {args.rounds} alternated rounds, one thread")
-    for key, unit in (("x_real_time", "x real time (one 4 s recording replayed)"),
-                      ("ms_per_run", "ms per run (100 recordings in one batch)")):
-        med = {k: float(np.median([r[key] for r in v])) for k, v in got.items()}
-        print(f"{unit}: before {med['before']:.1f}, lanes {med['lanes']:.1f}")
+    load0 = os.getloadavg()
+    for r in range(args.rounds):
+        for name in list(trees)[::1 if r % 2 == 0 else -1]:  # neither tree always runs first
+            got[name].append(measure(trees[name]))
+    load1 = os.getloadavg()
+    print(f"medians of {args.rounds} alternated rounds, one thread; load average (1, 5, 15 min) "
+          f"{load0[0]:.1f} {load0[1]:.1f} {load0[2]:.1f} before, {load1[0]:.1f} {load1[1]:.1f} {load1[2]:.1f} after")
+    for key, unit, faster in (("x_real_time", "x real time (one 4 s recording filtered), wall", 1),
+                              ("x_real_time_cpu", "x real time (one 4 s recording filtered), CPU", 1),
+                              ("ms_per_run", "ms per run (100 recordings in one batch), wall", -1),
+                              ("ms_per_run_cpu", "ms per run (100 recordings in one batch), CPU", -1)):
+        before, this = (np.array([r[key] for r in got[k]]) for k in trees)
+        gain = (this / before) ** faster  # > 1: this tree is faster
+        print(f"{unit}: before {np.median(before):.1f}, this tree {np.median(this):.1f}; speed-up "
+              f"{(np.median(this) / np.median(before)) ** faster:.2f}x (rounds {gain.min():.2f}-{gain.max():.2f})")
 
 
 if __name__ == "__main__":

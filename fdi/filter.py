@@ -1,10 +1,10 @@
 """The augmented-state Unscented Kalman Filter over ``sam``'s own step function.
 
 :func:`run_filter` runs B filters at once over the measured data of :class:`FilterInput` and
-returns :class:`FilterOutput`. The first seven states are advanced by
-:func:`sam.step_batch_inplace` (Eq. (22)); the parameter states are random walks written into
-each sigma point's parameter vector (:mod:`fdi.states`). There is no second copy of the
-physics here. Sigma points and weights follow filterpy's ``MerweScaledSigmaPoints`` exactly
+returns :class:`FilterOutput`. The first seven states are advanced by sam's one step
+(:func:`sam.step_blocks`, Eq. (22)), the sigma points kept in its lanes; the parameter states
+are random walks written into each sigma point's parameters (:mod:`fdi.states`). There is no
+second copy of the physics here. Sigma points and weights follow filterpy's ``MerweScaledSigmaPoints`` exactly
 (tests/test_fdi_ukf.py checks the whole filter against filterpy's ``UnscentedKalmanFilter``).
 
 Robustness: leak sigma points are clipped at 0 and the leak means projected onto K >= 0

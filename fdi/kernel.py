@@ -1,8 +1,11 @@
 """The compiled filter loop: B unscented Kalman filters over T samples, all sigma points of all
-filters through ONE ``sam.step_batch_inplace`` call per model step.
+filters through ONE ``sam.step_blocks`` call per sample.
 
-Per sample k, for every active filter: :func:`draw` its sigma points, :func:`to_model` (their
-parameters written into the model's rows), one batched model step, :func:`predicted_moments`
+The sigma points live, as the model sees them, in lane blocks (:mod:`sam.row_step`) laid out once
+per run: filter b's points are the model's rows off[b], off[b] + 1, ..., each with its filter's
+plant vector. Per sample k, for every active filter: :func:`draw` its sigma points,
+:func:`to_model` (their states, the input and the parameters they drive written into their
+lanes), one model step of all lanes, :func:`predicted_moments`
 (the unscented transform of the propagated points plus the process noise), then
 :func:`innovation`, :func:`kalman_update`, :func:`constrain`, :func:`guard` and :func:`write`.
 Each step is a small function inlined into the loop, handed one filter's rows as borrowed
@@ -21,7 +24,7 @@ from collections import namedtuple
 import numba
 import numpy as np
 
-from sam import step_batch_inplace
+from sam import block_lane, derived_parts, lane_blocks, step_blocks
 from sam.views import jit_inline, matrix, row, whole
 
 from .sigma import (
@@ -97,37 +100,40 @@ def draw(P, P0, z, c, jitter, L, A, act, na, sig, counts):
 
 
 @jit_inline
-def to_model(sig, nsb, scale, cols, rel, clip_leaks, nominal, u, ps, off, states, uu, rows):
-    """The nsb sigma points sig into the model's rows off, off + 1, ...: the model states in SI,
-    each augmented state written into its parameter column (leaks clipped at 0, calibration
-    states as nominal * (1 + c)), the input u and the measured supply pressure ps (if not NaN)."""
+def to_model(sig, nsb, scale, cols, rel, clip_leaks, nominal, u, ps, off, s, uu, p):
+    """The nsb sigma points sig into the model's rows off, off + 1, ... of the lane blocks (states
+    s, inputs uu, parameters p): the model states in SI, each augmented state written into its
+    parameter column (leaks clipped at 0, calibration states as nominal * (1 + c)), the input u
+    and the measured supply pressure ps (if not NaN; else the last one measured stays)."""
     for i in range(nsb):
-        r = off + i
+        blk, ln = block_lane(off + i)
         for j in range(N_MODEL):
-            states[r, j] = sig[i, j] * scale[j]
-        uu[r] = u
+            s[blk, j, ln] = sig[i, j] * scale[j]
+        uu[blk, ln] = u
         for q in range(cols.shape[0]):
             v = sig[i, N_MODEL + q] * scale[N_MODEL + q]
             if clip_leaks and q < 3 and v < 0.0:
                 v = 0.0
             if rel[q]:
                 v = nominal[cols[q]] * (1.0 + max(v, -0.95))
-            rows[r, cols[q]] = v
+            p[blk, cols[q], ln] = v
         if ps == ps:
-            rows[r, P_S_COL] = ps
+            p[blk, P_S_COL, ln] = ps
 
 
 @jit_inline
-def predicted_moments(sig, nsb, off, states, inv_scale, Wm, Wc, Qd, gate, gate_group, dev, z, P):
+def predicted_moments(sig, nsb, off, s, inv_scale, Wm, Wc, Qd, gate, gate_group, dev, z, P):
     """The predicted mean z and covariance P: the unscented transform of the propagated points
-    (model rows off, ...) plus the process noise Qd, each state's gated by gate[gate_group[j]].
+    (model rows off, ... of the lane blocks' states s) plus the process noise Qd, each state's
+    gated by gate[gate_group[j]].
     The parameter states are random walks the model leaves as drawn, so their mean stays z and
     their block of P stays as it was (the weights reproduce both): only the model states' rows
     are summed. A held state's points sit at its mean: its rows come out 0."""
     n = z.shape[0]
     for i in range(nsb):
+        blk, ln = block_lane(off + i)
         for j in range(N_MODEL):
-            sig[i, j] = states[off + i, j] * inv_scale[j]
+            sig[i, j] = s[blk, j, ln] * inv_scale[j]
     for j in range(N_MODEL):
         acc = 0.0
         for i in range(nsb):
@@ -358,8 +364,11 @@ def run(a, o):
     for b in range(B):
         for i in range(off[b + 1] - off[b]):
             rows[off[b] + i, :] = params[b, :]
-    states, uu, flags, sig = np.empty((off[B], N_MODEL)), np.empty(off[B]), np.empty(off[B], np.int64), \
-        np.empty((B, ns, n))
+    bs, bu, bp, bd, bflags = lane_blocks(rows)
+    # the constants the model derives from the parameters the filter writes (its augmented
+    # states', the supply pressure) are derived again at each sample; the others once, here
+    geometry, machine = derived_parts(np.append(a.param_cols, P_S_COL))
+    sig = np.empty((B, ns, n))
     inv_scale = 1.0 / a.scale  # a multiplication per sigma point and state, not a division
     L, A, dev, hs, col = np.empty((n, n)), np.empty((n, n)), np.empty((ns, n)), np.empty((ns, m)), np.empty(m)
     Lc, fp, fm = np.empty((n, N_READ)), np.empty(N_READ), np.empty(N_READ)
@@ -381,12 +390,11 @@ def run(a, o):
                 draw(matrix(P, b), matrix(P0, b), row(z, b), n_act[b] + lam[b], jitter, L, A, row(act, b), n_act[b],
                      matrix(sig, b), row(counts, b))
                 to_model(matrix(sig, b), nsb, scale, cols, rel, clip_leaks, row(params, b), u[b, k - 1], pS[b, k - 1],
-                         off[b], states, uu, rows)
-            na = off[nA]
-            for _ in range(n_sub):  # a coarse recording: n_sub model steps per sample, input held
-                step_batch_inplace(states[:na], uu[:na], rows[:na], dt / n_sub, flags[:na], 1, scheme)
+                         off[b], bs, bu, bp)
+            # a coarse recording: n_sub model steps per sample, input held
+            step_blocks(bs, bu, bp, bd, dt, bflags, off[nA], n_sub, scheme, geometry, machine)
             for b in range(nA):
-                predicted_moments(matrix(sig, b), 2 * n_act[b] + 1, off[b], states, inv_scale, row(Wm, b),
+                predicted_moments(matrix(sig, b), 2 * n_act[b] + 1, off[b], bs, inv_scale, row(Wm, b),
                                   row(Wc, b), Qd, row(matrix(q_gate, b), k), gate_group, dev, row(z, b), matrix(P, b))
         for b in range(nA):  # ---- update
             s = slot[b]

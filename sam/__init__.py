@@ -15,7 +15,9 @@ Public face:
   :class:`Uncertain` (``plant.uncertain``);
 * the model: :data:`S` (state layout), :func:`step` (:data:`SCHEMES`), :func:`step_batch`
   (:func:`step_batch_inplace`), :func:`rhs`,
-  :func:`stroke_ends` (the end stops);
+  :func:`stroke_ends` (the end stops); rows kept in the step's lanes from step to step (the
+  filter's sigma points): :func:`lane_blocks`, :func:`block_lane`, :func:`derived_parts`,
+  :func:`step_blocks`;
 * simulation: :func:`simulate_batch`, :func:`initial_state`, :func:`run_scenario`;
 * recordings: :class:`Recording`, :func:`read_recording`, :func:`write_recording`.
 """
@@ -29,14 +31,15 @@ from .params import (
 )
 from .plant import default_plant_path, load_plant
 from .recording import Recording, RecordingError, read_recording, write_recording
-from .row_step import step_batch, step_batch_inplace
+from .row_step import block_lane, derived_parts, lane_blocks, step_batch, step_batch_inplace, step_blocks
 from .scenario import Scenario, load_scenario, run_scenario
 from .simulate import BatchResult, initial_state, simulate_batch
 
 __all__ = [
     "DT_DEFAULT", "LEAK_REFERENCE_DP", "LPM", "D", "N_SCRATCH", "N_STATES", "SCHEMES", "S", "Scheme", "derive",
     "euler_step", "step",
-    "rhs", "step_batch", "step_batch_inplace", "stroke_ends", "UserError", "P", "PARAM_NAMES", "Boom", "Cylinder", "Disturbances",
+    "rhs", "step_batch", "step_batch_inplace", "block_lane", "derived_parts", "lane_blocks", "step_blocks",
+    "stroke_ends", "UserError", "P", "PARAM_NAMES", "Boom", "Cylinder", "Disturbances",
     "Effects", "Faults", "Fluid", "Friction", "Plant", "Supply", "Uncertain", "Valve", "default_plant_path",
     "load_plant", "Recording", "RecordingError", "read_recording", "write_recording",
     "BatchResult", "initial_state", "simulate_batch", "Scenario", "load_scenario", "run_scenario",

@@ -126,6 +126,32 @@ def test_the_filters_step_is_the_simulators_for_sigma_points(scheme):
     assert np.array_equal(nxt, _states(res)[:, :, 151].T)
 
 
+@pytest.mark.parametrize("scheme", ["euler", "heun"])
+def test_rows_kept_in_lane_blocks_step_as_rows_do(scheme):
+    """45 rows kept in lane blocks from step to step (the filter's sigma points, fdi.kernel): new
+    states, inputs, leaks, load masses and notch flows written into their lanes at each step, and
+    step_blocks deriving again the constants those parameters feed (derived_parts), give
+    step_batch's rows to the last bit, step after step."""
+    params, state = _batch(45, seed=7, faults=True)
+    s, u, p, d, flags = sam.lane_blocks(params)
+    changed = np.array([P.K_int, P.m_L, P.Q_N_PA, P.p_S])
+    geometry, machine = sam.derived_parts(changed)
+    assert (geometry, machine) == (False, True)
+    assert sam.derived_parts(np.array([P.L_1])) == (True, False)
+    assert sam.derived_parts(np.array([P.K_extA, P.p_S, P.F_d])) == (False, False)
+    rng = np.random.default_rng(8)
+    for _ in range(30):
+        uk = rng.uniform(-10.0, 10.0, 45)
+        params[:, changed] *= rng.uniform(0.9, 1.1, (45, len(changed)))
+        for i in range(45):
+            b, j = sam.block_lane(i)
+            s[b, :, j], u[b, j], p[b, changed, j] = state[i], uk[i], params[i, changed]
+        sam.step_blocks(s, u, p, d, DT, flags, 45, 2, int(sam.SCHEMES[scheme]), geometry, machine)
+        state, _ = sam.step_batch(state, uk, params, DT, 2, int(sam.SCHEMES[scheme]))
+        lanes = np.array([s[sam.block_lane(i)[0], :, sam.block_lane(i)[1]] for i in range(45)])
+        assert np.array_equal(lanes, state)
+
+
 @settings(max_examples=200, deadline=None)
 @given(x=st.one_of(st.floats(-800.0, 800.0), st.sampled_from([0.0, -0.0, -745.2, -708.5, 709.7, -1e-300,
                                                              math.inf, -math.inf, math.nan])))
