@@ -319,8 +319,8 @@ def _refit(split: Split, cal: FitResult, calib, first: Candidate, starts: list[F
     model = Model(cal.params, _free_of(calib, first.hypothesis), cal.meas)
     vals = {**cal.values, **first.result.values}
     thetas = [model.theta_of({**vals, **{k: v for k, v in s.values.items() if k in vals}}) for s in starts]
-    st = settings
-    return fit_by_segment(split, model, thetas, st.hypothesis_nfev, st.segment_rounds, st.segment_round_nfev)
+    return fit_by_segment(split, model, thetas, settings.hypothesis_nfev, settings.segment_rounds,
+                          settings.segment_round_nfev)
 
 
 def _rank_key(c: Candidate):
