@@ -21,7 +21,7 @@ from sam.constants import G
 from sam.geometry import cos_joint_angle, stroke_end, torque_arm, torque_arm_slope_cs
 
 from .data import Prepared
-from .fitting import FitResult, Model, Split, fit
+from .fitting import FitResult, Model, Split, at, fit_by_segment
 from .library import Free
 from .settings import Settings
 
@@ -121,10 +121,21 @@ def commissioning_start(data: Prepared, plant: Plant, calib: tuple[Free, ...], s
 
 def calibrate(split: Split, plant: Plant, calib: tuple[Free, ...], start: dict[str, float],
               settings: Settings) -> FitResult:
-    """Least squares on simulation error over ``calib``, from the nominal values and from ``start``
-    (:func:`commissioning_start`), whichever fits better at the start."""
+    """Least squares on simulation error over ``calib`` with one residual variance per segment
+    (:func:`fitting.fit_by_segment`), from the nominal values and from ``start``
+    (:func:`commissioning_start`), whichever fits better at the start.
+
+    The calibration is kept only when it predicts the held-out part better than the nominal values
+    do (smaller squared error there); otherwise the nominal values are the calibration. A
+    calibration that fits the fitting part but loses held out has fitted what the commissioning
+    parameters cannot explain (a concealed effect, start transients), and every hypothesis would
+    then be judged against, and start from, that distortion."""
     model = Model(plant.vector(), calib)
-    return fit(split, model, [model.theta_of({}), model.theta_of(start)], max_nfev=settings.calibration_nfev)
+    nominal = model.theta_of({})
+    cal = fit_by_segment(split, model, [nominal, model.theta_of(start)], settings.calibration_nfev,
+                         settings.segment_rounds, settings.segment_round_nfev)
+    kept = at(split, model, nominal)
+    return cal if cal.rss_held < kept.rss_held else kept
 
 
 __all__ = ["ALWAYS", "calibrate", "calibration_params", "commissioning_start", "force_balance_start"]

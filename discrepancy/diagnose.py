@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -19,7 +18,8 @@ from sam.recording import Recording
 from . import locate as loc
 from .data import check_same_plant, check_segment, prepare, sampling_note, sensor_limits
 from .design import Design, settle
-from .fitting import FitResult, Model, Split, correlation_time, evaluate, fit, segment_delta_bic, segment_rss, segment_scales
+from .fitting import (FitResult, Model, Split, correlation_time, evaluate, fit_by_segment, segment_delta_bic, segment_rss,
+                      segment_scales, unweighted)
 from .commissioning import calibrate, calibration_params, commissioning_start
 from .floor import Floor, Specificity, specific, start_sensitive, step_floor
 from .library import Free, Hypothesis, format_value, library
@@ -216,10 +216,10 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
         # first effect's fit (feasible GLS, see fitting.segment_scales), and everything in this round
         # (the re-fitted first effect, the score test, the pair fits, the BIC on both parts) is computed
         # under it: one segment with a large start-up error must not decide which second effect is found.
-        ref0 = _refit(split, cal, calib, first, [first.result])
+        ref0 = _refit(split, cal, calib, first, [first.result], settings)
         m1 = Model(cal.params, _free_of(calib, first.hypothesis), cal.meas)
         wsplit = split.weighted(segment_scales(split, m1, m1.theta_of(ref0.values)))
-        ref1 = _refit(wsplit, cal, calib, first, [ref0])
+        ref1 = _refit(wsplit, cal, calib, first, [ref0], settings)
         r1 = evaluate(wsplit, Model(ref1.params, (), ref1.meas), np.zeros((1, 0)), "fit")[0]
         n_eff2 = max(ref1.n_fit / correlation_time(r1, n_blocks), 10.0)
         rest = [h for h in hyps if h.name not in {x.name for x in first.hypothesis}]
@@ -239,7 +239,7 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
             if c2.accepted:
                 # ablation: the first effect alone, re-fitted from the pair's optimum; the second must still
                 # pass every test against it (it has to earn its gain on its own, held out included)
-                abl = _refit(wsplit, cal, calib, first, [c2.result])
+                abl = _refit(wsplit, cal, calib, first, [c2.result], settings)
                 if abl.rss_fit < ref1.rss_fit:
                     c2 = _judge(wsplit, first.hypothesis + [h], c2.result, abl, n_eff2, c2.signature, gate, second=True)
             if _DEBUG:
@@ -250,7 +250,7 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
             if c2.accepted and (best2 is None or c2.delta_bic_held < best2.delta_bic_held):
                 best2 = c2
         if best2 is not None:
-            best2.result = _unweighted(split, best2.result)
+            best2.result = unweighted(split, best2.result)
             chosen = [best2]
     timings["name_s"] = time.perf_counter() - t_start
 
@@ -307,26 +307,20 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     return report
 
 
-def _unweighted(split: Split, res: FitResult) -> FitResult:
-    """``res`` with its squared errors on ``split`` (unweighted), comparable with the calibration's."""
-    model = Model(res.params, (), res.meas)
-    none = np.zeros((1, 0))
-    rss = [float(np.sum(evaluate(split, model, none, part)[0] ** 2)) for part in ("fit", "held")]
-    return dataclasses.replace(res, rss_fit=rss[0], rss_held=rss[1])
-
-
 def _free_of(calib, hyps) -> tuple[Free, ...]:
     """The calibration parameters followed by every parameter of ``hyps``."""
     return tuple(calib) + tuple(f for h in hyps for f in h.params)
 
 
-def _refit(split: Split, cal: FitResult, calib, first: Candidate, starts: list[FitResult]) -> FitResult:
+def _refit(split: Split, cal: FitResult, calib, first: Candidate, starts: list[FitResult],
+           settings: Settings) -> FitResult:
     """The first effect (with the calibration parameters) fitted again on ``split`` from the best of
     ``starts`` (fits whose values of the same parameters are used; the first's own optimum fills gaps)."""
     model = Model(cal.params, _free_of(calib, first.hypothesis), cal.meas)
     vals = {**cal.values, **first.result.values}
     thetas = [model.theta_of({**vals, **{k: v for k, v in s.values.items() if k in vals}}) for s in starts]
-    return fit(split, model, thetas, max_nfev=30)
+    return fit_by_segment(split, model, thetas, settings.hypothesis_nfev, settings.segment_rounds,
+                          settings.segment_round_nfev)
 
 
 def _rank_key(c: Candidate):
@@ -371,7 +365,8 @@ def _fit_hypothesis(split: Split, cal: FitResult, calib, hyps: list[Hypothesis],
                 starts.append(model.theta_of({**base_vals, **s}))
                 if restart:
                     starts.append(model.theta_of({**restart, **s}))
-    res = fit(split, model, starts, max_nfev=30)
+    st = gate.settings
+    res = fit_by_segment(split, model, starts, st.hypothesis_nfev, st.segment_rounds, st.segment_round_nfev)
     return _judge(split, hyps, res, reference, n_eff, signature, gate, second)
 
 

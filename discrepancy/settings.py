@@ -20,6 +20,15 @@ class Settings:
     arm_rate_torque: bool = True
     #: least-squares evaluations of the calibration
     calibration_nfev: int = 60
+    #: least-squares evaluations of a hypothesis fit (with the calibration parameters)
+    hypothesis_nfev: int = 30
+    #: reweighting rounds of every first-round fit, one residual variance per segment
+    #: (fitting.fit_by_segment): a segment ringing from its start state must not steer the parameters.
+    #: One feasible-GLS step, as the second round takes: a second step halves what is left of the
+    #: held-out error on the sam-made air case (1.2 -> 0.6, nominal 5.7) for twice the fitting time
+    segment_rounds: int = 1
+    #: ...and the least-squares evaluations of each round (it starts at the previous optimum)
+    segment_round_nfev: int = 15
     #: m/s: samples faster than this enter the force-balance start of the load and the level angle
     commissioning_min_speed: float = 0.01
     #: fewer moving samples than this: no force-balance start (the nominal values are the start)
