@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sam import P, Plant, Recording, UserError, initial_state, simulate_batch
+from sam import P, Plant, Recording, UserError, initial_state, simulate_batch, stroke_ends
 from sam.geometry import joint_angle, piston_position
 from sam.measurement import ENCODER_RESOLUTION_RAD
 
@@ -164,7 +164,7 @@ def at_the_stops(column: str, pos: np.ndarray, plant: Plant) -> np.ndarray:
     piston (docs/fdi.md, "On rig recordings")."""
     p = plant.vector()
     L = p[P.L_1], p[P.L_2], p[P.L_3]
-    x_end = min(p[P.x_max], piston_position(p[P.theta_max], *L))
+    x_end = float(stroke_ends(p))
     ends = (0.0, x_end) if column == "x" else tuple(sorted((joint_angle(0.0, *L), joint_angle(x_end, *L))))
     with np.errstate(invalid="ignore"):  # NaN (missing) stays missing
         return np.where(np.isfinite(pos), np.clip(pos, *ends), pos)
@@ -177,8 +177,7 @@ def _outside_stroke(column: str, pos: np.ndarray, plant: Plant, margin: float) -
     every sample and report a confident, meaningless diagnosis."""
     p = plant.vector()
     L = p[P.L_1], p[P.L_2], p[P.L_3]
-    x_joint = piston_position(p[P.theta_max], *L)
-    x_end = min(p[P.x_max], x_joint)
+    x_end = float(stroke_ends(p))
     if column == "x":
         x = pos
     else:
@@ -186,7 +185,7 @@ def _outside_stroke(column: str, pos: np.ndarray, plant: Plant, margin: float) -
     bad = np.isfinite(pos) & ~((x >= -margin) & (x <= x_end + margin))
     ends = ("" if column == "x" else
             f"theta {joint_angle(0.0, *L):.4g}-{joint_angle(x_end, *L):.4g} rad, i.e. ") + f"x 0-{x_end:.4g} m"
-    limit = (f"theta_max {p[P.theta_max]:g} rad limits x_max {p[P.x_max]:g} m" if x_joint < p[P.x_max]
+    limit = (f"theta_max {p[P.theta_max]:g} rad limits x_max {p[P.x_max]:g} m" if x_end < p[P.x_max]
              else f"x_max {p[P.x_max]:g} m")
     return bad, f"the plant's stroke ({ends}, +-{margin * 1e3:g} mm; {limit})"
 

@@ -583,19 +583,17 @@ def euler_step(s, u, p, d, dt, ds):
     rail at a rate c G (:func:`rates`) that grows without bound as the edge's pressure drop
     vanishes (the slope of ``sqrt(dp)``). Forward Euler with dt c G > 1 steps across the rail,
     and at 1 ms it settles into a period-2 oscillation around it, of amplitude
-    (dt c K_v x_s)^2 / 4: 11 kPa in p_A on the retracted stop at 2.4 V (docs/model.md,
-    "Numerics"). A path between the chambers (a leak across the piston at a small pressure
-    difference) does the same to their difference. Where a path is stiff, the pressures take
-    the linearised backward-Euler step of :func:`stiff_pressure_rates`, which lands on the rail
-    (or the difference on its balance) instead of crossing it; elsewhere the step
-    is forward Euler's, unchanged. Afterwards the state is kept physical:
+    (dt c K_v x_s)^2 / 4: 11 kPa in p_A on the retracted stop at 2.4 V (docs/model.md, "Numerics");
+    a leak across the piston at a small pressure difference does the same to the difference. Where
+    a path is stiff, the pressures take the linearised backward-Euler step of
+    :func:`stiff_pressure_rates`, landing on the rail (or balance); elsewhere forward Euler's.
+    Afterwards the state is kept physical:
 
     * pressures are clamped at the cavitation floor :data:`P_CAVITATION`
       (flagged with :data:`FLAG_CAVITATION`, since Eqs. (8)-(9) no longer hold);
-    * the piston stops at its end stops, x in [0, stroke_end(p)], where the
-      velocity into the stop is zeroed (an inelastic stop); a step that reaches a stop
-      compresses the chambers only by the travel to it (:func:`stop_travel_velocity`), so
-      volume is conserved there too.
+    * the piston stops at its end stops, x in [0, stroke_end(p)], its velocity into the stop
+      zeroed (an inelastic stop); a step that reaches a stop compresses the chambers only by the
+      travel to it (:func:`stop_travel_velocity`), so volume is conserved there too.
 
     Returns the flag word (0 when nothing was clamped but the end stops).
     """
