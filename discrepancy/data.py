@@ -71,6 +71,15 @@ def _fill_nan(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.interp(idx, idx[ok], y[ok]), ok
 
 
+def missing_note(data: Prepared) -> str | None:
+    """The warning for samples a recording lacks (NaN): filled in for the simulation, never scored."""
+    counts = {k: int((~v).sum()) for k, v in data.valid.items() if not v.all()}
+    if not counts:
+        return None
+    which = ", ".join(f"{n} in {'the position' if k == 'x' else repr(k)}" for k, n in counts.items())
+    return f"{data.name}: missing (NaN) samples, {which}: interpolated for the simulation and not scored"
+
+
 def prepare(rec: Recording, plant: Plant, *, role: str = "recording", min_duration: float = MIN_DURATION_S,
             settings: Settings = Settings()) -> Prepared:
     """Check a recording and build a :class:`Prepared` from it (raises UserError)."""

@@ -16,7 +16,7 @@ from sam import Plant
 from sam.recording import Recording
 
 from . import locate as loc
-from .data import check_same_plant, check_segment, prepare, sampling_note, sensor_limits
+from .data import check_same_plant, check_segment, missing_note, prepare, sampling_note, sensor_limits
 from .design import Design, settle
 from .fitting import (FitResult, Model, Split, correlation_time, evaluate, fit_by_segment, segment_delta_bic, segment_rss,
                       segment_scales, unweighted)
@@ -130,8 +130,10 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     timings = {}
     warnings: list[str] = []
     data = prepare(rec, plant, settings=settings)
+    warnings.extend(filter(None, [missing_note(data)]))
     if validate is not None:
         vdata = prepare(validate, plant, role="validation recording", min_duration=1.0, settings=settings)
+        warnings.extend(filter(None, [missing_note(vdata)]))
         check_same_plant(data, vdata, plant, str(validate.source or "validation recording"))
         check_segment(seg_s, data, vdata)
         if note := sampling_note(data, vdata):

@@ -164,6 +164,20 @@ def test_cli_user_errors_are_one_line(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
 
 
+def test_missing_samples_are_said_and_not_scored(plant):
+    """NaN samples are filled in for the simulation, left out of every score, and the report's
+    warnings say how many, in which column."""
+    from discrepancy.data import missing_note
+
+    rec = make_recording(CASE["no_mismatch"], duration=4.0, seed=2).measured()
+    assert missing_note(prepare(rec, plant)) is None
+    pA = rec.signals["pA"].copy()
+    pA[[100, 101, 2500]] = np.nan
+    data = prepare(dataclasses.replace(rec, signals={**rec.signals, "pA": pA}), plant)
+    assert np.isfinite(data.y["pA"]).all() and not data.scored["pA"][[100, 101, 2500]].any()
+    assert "3 in 'pA'" in missing_note(data) and "not scored" in missing_note(data)
+
+
 def test_parameters_at_bounds_are_reported(plant):
     # the recording's bulk modulus is far below anything the calibration box allows
     rec = make_recording(dataclasses.replace(CASE["no_mismatch"], plant={"B_eff": 9e7}), duration=4.0, seed=5)
