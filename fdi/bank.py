@@ -106,11 +106,17 @@ class BankDesign:
 DESIGN = BankDesign()
 
 
-def reference_config(design: BankDesign = None) -> FilterConfig:
+def reference_config(design: BankDesign = None, sensors: Sensors | None = None) -> FilterConfig:
     """The healthy reference filter: the design's reference with every fault parameter held at
-    its healthy value (no process noise, prior std x ``held_p0_factor``)."""
+    its healthy value (no process noise, prior std x ``held_p0_factor``). ``sensors``: the
+    detecting filter's, whose pressure and linear-position noise the bank then assumes too (a
+    recording's own noise, :func:`fdi.recording.recording_sensors`: a bank that expects quieter
+    transmitters than the recording's would credit their noise to whichever fault absorbs most)."""
     design = DESIGN if design is None else design
     base = design.reference
+    if sensors is not None:
+        base = base.with_(sensors=replace(base.sensors, pressure_noise=sensors.pressure_noise,
+                                          x_noise=sensors.x_noise))
     return (base.with_process_noise(**{f: 0.0 for f in FAULTS})
             .with_initial_sd(**{f: base.initial_sd[f] * design.held_p0_factor for f in FAULTS}))
 
@@ -163,7 +169,7 @@ def run_reference(out: FilterOutput, rows: np.ndarray, k_end: np.ndarray, design
     L = int(max(1, np.max(k_end)))
     seg = _rows(inp, rows, np.zeros(len(rows), dtype=np.int64), np.minimum(k_end, inp.u.shape[1]), L)
     sub = replace(inp, params=inp.params[rows], **seg)
-    base = reference_config(design)
+    base = reference_config(design, out.config.sensors)
     cfg = base.with_(calibration=replace(base.calibration, hold_after_s=out.config.calibration.hold_after_s),
                      hold_band_V=out.config.hold_band_V)
     # the fault states are known constants here: no sigma points for them (29 instead of 37)

@@ -33,7 +33,7 @@ from .filter import run_filter
 from .isolation import margin_for
 from .metrics import fault_row, healthy_rates, write_json
 from .montecarlo import TUNE
-from .offline import prepare
+from .offline import own_noise, prepare
 from .scoring import bank_decisions, window_maxima
 from .statistics import statistics
 from .thresholds import Thresholds
@@ -114,7 +114,7 @@ def score(rec, lab: Label, plant: Plant, thresholds: Thresholds | None, cfg: Fil
     (:func:`fdi.bound.onset_evidence`; a healthy run at an onset drawn from its length, seeded)."""
     rec, inp, th, _, _ = prepare(rec, plant, thresholds, plant_name="the plant")
     check_rate(th)
-    out = run_filter(inp, FilterConfig() if cfg is None else cfg)
+    out = run_filter(inp, own_noise(FilterConfig() if cfg is None else cfg, inp)[0])
     st = statistics(out, th)
     faulty = lab.fault is not None
     t = rec.t - rec.t[0]

@@ -26,6 +26,7 @@ from .figures import replay_figure
 from .filter import FilterOutput, run_filter
 from .recording import (
     at_thresholds_rate, check_duration, check_observable, detect_position_sensor, excitation_caveat, filter_input,
+    recording_sensors,
 )
 from .states import STATE_NAMES, leak_lpm
 from .statistics import residuals, statistics
@@ -97,6 +98,21 @@ def prepare(rec: Recording, plant: Plant, thresholds: Thresholds | None = None, 
     return rec, inp, thresholds, sensor, health
 
 
+def own_noise(cfg: FilterConfig, inp) -> tuple[FilterConfig, str]:
+    """``cfg`` with the recording's own sensor noise where it is larger
+    (:func:`fdi.recording.recording_sensors`), and a note saying so ("" when unchanged)."""
+    sensors = recording_sensors(cfg.sensors, inp)
+    if sensors == cfg.sensors:
+        return cfg, ""
+    pairs = (("pressure", sensors.pressure_noise, cfg.sensors.pressure_noise, 1e-3, "kPa"),
+             ("position", sensors.x_noise, cfg.sensors.x_noise, 1e6, "um"))
+    said = [f"{name} noise {new * k:.3g} {unit} (the filter's {old * k:.3g})" for name, new, old, k, unit in pairs
+            if new != old]
+    return cfg.with_(sensors=sensors), (
+        f"the recording's sensors are noisier than the filter's: {', '.join(said)}; the filter assumed the "
+        "recording's own, so faults are found later and the thresholds' false-alarm level is not the tuned one")
+
+
 def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None, thresholds: Thresholds | None = None,
            drop_out_of_range: bool = False, baseline: Recording | np.ndarray | None = None,
            reference: Recording | None = None, plant_name: str = "plant", position_sensor: str | None = None,
@@ -131,6 +147,7 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None, thr
                                       drop_out_of_range=drop_out_of_range)
     if cal is not None:
         inp, cfg = calibration.apply(inp, cfg, cal)
+    cfg, noise_note = own_noise(cfg, inp)
     out = run_filter(inp, cfg)
     out = replace(out, t=rec.t - rec.t[0])
     diag = diagnose(out, thresholds, 0, statistics(out, thresholds, baseline), baseline, design=design)
@@ -138,7 +155,9 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None, thr
     caveat = excitation_caveat(inp)
     if caveat:
         health["input_not_excited"] = caveat
-    note = diag.note
+    note = "; ".join(n for n in (diag.note, noise_note) if n)
+    if noise_note:
+        health["noise_warning"] = noise_note
     if thresholds.derived.position_sensor != sensor:
         warning = (f"the thresholds were derived for the {thresholds.derived.position_sensor} position sensor, but "
                    f"the recording's position reads as the {sensor} one: their false-alarm level does not hold "

@@ -8,7 +8,7 @@ thresholds is refused with what to do; a plant file under which a fault could no
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -16,6 +16,7 @@ from sam import P, Plant, Recording, UserError, initial_state, simulate_batch, s
 from sam.geometry import joint_angle, piston_position
 from sam.measurement import ENCODER_RESOLUTION_RAD
 
+from .config import Sensors
 from .filter import FilterInput, model_substeps
 from .states import K_PER_LPM, POS_THETA, POS_X
 from .thresholds import Thresholds
@@ -47,6 +48,10 @@ class InputChecks:
     #: V: a valve input whose range is below this is constant: one operating point, which cannot
     #: tell the faults apart (K_int and the offset act alike there) nor show that the model fits
     min_input_range_V: float = 0.05
+    #: the filter takes a recording's own sensor noise (:func:`recording_sensors`) where it is
+    #: above the configured one by more than this factor; below, the configured one stands (the
+    #: thresholds' false-alarm level was set with it); None: always the configured noise
+    own_noise_factor: float | None = 1.25
 
 
 CHECKS = InputChecks()
@@ -63,6 +68,7 @@ class InputReport:
     out_of_range_samples: int  #: samples made missing by --drop-out-of-range
     ignored_optional_columns: list
     u_gaps_held: int = 0  #: missing input samples held at the last value
+    pressure_noise_Pa: float = float("nan")  #: the transmitters' own white noise (:func:`white_noise_std`)
 
     def to_dict(self) -> dict:
         d = {"samples": self.samples, "dt_s": self.dt_s, "position": self.position,
@@ -70,7 +76,40 @@ class InputReport:
              "out_of_range_samples": self.out_of_range_samples, "ignored_optional_columns": self.ignored_optional_columns}
         if self.u_gaps_held:
             d["u_gaps_held"] = self.u_gaps_held
+        if np.isfinite(self.pressure_noise_Pa):
+            d["pressure_noise_Pa"] = round(float(self.pressure_noise_Pa), 1)
         return d
+
+
+def white_noise_std(a: np.ndarray) -> float:
+    """Std of the white noise on a uniformly sampled signal (its unit), from its second
+    differences: white noise of std s gives y[k+1] - 2 y[k] + y[k-1] a std of s sqrt(6), and
+    their median absolute value (x 1.4826, the normal distribution's MAD factor) ignores the
+    samples where the signal itself bends (steps, transients), as long as those are fewer than
+    half. NaN samples are skipped; nan when fewer than 10 differences are left."""
+    d2 = np.diff(np.asarray(a, dtype=float), 2)
+    d2 = d2[np.isfinite(d2)]
+    if len(d2) < 10:
+        return float("nan")
+    return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))
+
+
+def recording_sensors(sensors: Sensors, inp: FilterInput, checks: InputChecks = CHECKS) -> Sensors:
+    """The sensor noise the filter assumes for this recording: ``sensors`` (the configured one),
+    with the pressure noise (the larger of pA's and pB's :func:`white_noise_std`) and, for a
+    linear transducer, the position noise raised to the recording's own where that is above the
+    configured one by more than ``checks.own_noise_factor``. Never lowered: a filter that
+    trusted quieter transmitters than the thresholds were derived with would alarm more often."""
+    factor = checks.own_noise_factor
+    if factor is None:
+        return sensors
+    own_p = max(white_noise_std(inp.pA[0]), white_noise_std(inp.pB[0]))
+    if own_p > factor * sensors.pressure_noise:
+        sensors = replace(sensors, pressure_noise=own_p)
+    own_x = white_noise_std(inp.pos[0]) if inp.linear_position else float("nan")
+    if own_x > factor * sensors.x_noise:
+        sensors = replace(sensors, x_noise=own_x)
+    return sensors
 
 
 def encoder_grid_coherence(x: np.ndarray, plant: Plant, checks: InputChecks = CHECKS) -> float:
@@ -138,7 +177,8 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
                       pS=sig["pS"][None, :] if "pS" in sig else None, position_sensor=sensor)
     return inp, InputReport(samples=rec.n, dt_s=rec.dt, position=column, supply_pressure_measured="pS" in sig,
                             out_of_range_samples=dropped,
-                            ignored_optional_columns=sorted(set(rec.signals) & {"v", "xs"}), u_gaps_held=gaps)
+                            ignored_optional_columns=sorted(set(rec.signals) & {"v", "xs"}), u_gaps_held=gaps,
+                            pressure_noise_Pa=max(white_noise_std(sig["pA"]), white_noise_std(sig["pB"])))
 
 
 def _drop(name: str, t, column: str, a: np.ndarray, bad: np.ndarray, unit: str, valid: str, drop: bool,
@@ -194,7 +234,8 @@ def check_observable(inp: FilterInput, plant: Plant, name: str = "plant", record
                      checks: InputChecks = CHECKS) -> None:
     """Refuse a plant under which a fault parameter cannot change the measurements: the
     recording's input simulated with each fault at a clear size (1 L/min at 10 MPa, 2 % offset)
-    must move the chamber pressures by more than ``observable_Pa``."""
+    must move the chamber pressures by more than ``observable_Pa`` or the recording's own
+    pressure noise (:func:`white_noise_std`), whichever is larger."""
     T = min(inp.u.shape[1], int(checks.observability_s / inp.dt) + 1)
     p0 = plant.vector()
     rows = [p0.copy()]
@@ -211,13 +252,15 @@ def check_observable(inp: FilterInput, plant: Plant, name: str = "plant", record
     if not all(np.isfinite(res[c]).all() for c in ("p_A", "p_B", "x")):
         raise UserError(f"{name}: the model diverges under this plant and the input of {recording}; "
                         "check the plant parameters (lengths and diameters in m, volumes, B_eff, valve flows)")
+    own = max(white_noise_std(inp.pA[0]), white_noise_std(inp.pB[0]))
+    noise = max(checks.observable_Pa, own) if np.isfinite(own) else checks.observable_Pa
     for i, f in enumerate(sizes, start=1):
         effect = max(np.max(np.abs(res["p_A"][i] - res["p_A"][0])), np.max(np.abs(res["p_B"][i] - res["p_B"][0])))
-        if not effect > checks.observable_Pa:
+        if not effect > noise:
             raise UserError(
                 f"{name}: parameter '{f}' is unobservable with this plant: a fault of "
                 f"{'2 %' if f == 'offset' else '1 L/min at 10 MPa'} changes the chamber pressures by "
-                f"only {effect:.3g} Pa (< the {checks.observable_Pa / 1e3:g} kPa sensor noise) under the input of "
+                f"only {effect:.3g} Pa (< the {noise / 1e3:.3g} kPa sensor noise) under the input of "
                 f"{recording}; check p_S, B_eff, V_0A, V_0B and the valve flows")
 
 
