@@ -109,14 +109,16 @@ DESIGN = BankDesign()
 def reference_config(design: BankDesign = None, sensors: Sensors | None = None) -> FilterConfig:
     """The healthy reference filter: the design's reference with every fault parameter held at
     its healthy value (no process noise, prior std x ``held_p0_factor``). ``sensors``: the
-    detecting filter's, whose pressure and linear-position noise the bank then assumes too (a
+    detecting filter's, whose pressure, position and encoder noise the bank then assumes too (a
     recording's own noise, :func:`fdi.recording.recording_sensors`: a bank that expects quieter
     transmitters than the recording's would credit their noise to whichever fault absorbs most)."""
     design = DESIGN if design is None else design
     base = design.reference
     if sensors is not None:
         base = base.with_(sensors=replace(base.sensors, pressure_noise=sensors.pressure_noise,
-                                          x_noise=sensors.x_noise))
+                                          x_noise=sensors.x_noise, theta_pulse=sensors.theta_pulse,
+                                          theta_noise_floor=max(base.sensors.theta_noise_floor,
+                                                                sensors.theta_noise_floor)))
     return (base.with_process_noise(**{f: 0.0 for f in FAULTS})
             .with_initial_sd(**{f: base.initial_sd[f] * design.held_p0_factor for f in FAULTS}))
 

@@ -104,9 +104,10 @@ def own_noise(cfg: FilterConfig, inp) -> tuple[FilterConfig, str]:
     sensors = recording_sensors(cfg.sensors, inp)
     if sensors == cfg.sensors:
         return cfg, ""
-    pairs = (("pressure", sensors.pressure_noise, cfg.sensors.pressure_noise, 1e-3, "kPa"),
-             ("position", sensors.x_noise, cfg.sensors.x_noise, 1e6, "um"))
-    said = [f"{name} noise {new * k:.3g} {unit} (the filter's {old * k:.3g})" for name, new, old, k, unit in pairs
+    pairs = (("pressure noise", sensors.pressure_noise, cfg.sensors.pressure_noise, 1e-3, "kPa"),
+             ("position noise", sensors.x_noise, cfg.sensors.x_noise, 1e6, "um"),
+             ("encoder pulse", sensors.theta_pulse, cfg.sensors.theta_pulse, 180 / np.pi, "deg"))
+    said = [f"{name} {new * k:.3g} {unit} (the filter's {old * k:.3g})" for name, new, old, k, unit in pairs
             if new != old]
     return cfg.with_(sensors=sensors), (
         f"the recording's sensors are noisier than the filter's: {', '.join(said)}; the filter assumed the "

@@ -52,6 +52,10 @@ class InputChecks:
     #: above the configured one by more than this factor; below, the configured one stands (the
     #: thresholds' false-alarm level was set with it); None: always the configured noise
     own_noise_factor: float | None = 1.25
+    #: an encoder's steps between samples are whole numbers of its pulse: at least this share of
+    #: them within ``grid_tolerance`` pulses of one (:func:`encoder_pulse`) for a grid of any pulse
+    grid_share: float = 0.9
+    grid_tolerance: float = 0.1
 
 
 CHECKS = InputChecks()
@@ -69,6 +73,7 @@ class InputReport:
     ignored_optional_columns: list
     u_gaps_held: int = 0  #: missing input samples held at the last value
     pressure_noise_Pa: float = float("nan")  #: the transmitters' own white noise (:func:`white_noise_std`)
+    encoder_pulse_rad: float = float("nan")  #: the encoder's pulse found in the data (:func:`encoder_pulse`)
 
     def to_dict(self) -> dict:
         d = {"samples": self.samples, "dt_s": self.dt_s, "position": self.position,
@@ -78,7 +83,32 @@ class InputReport:
             d["u_gaps_held"] = self.u_gaps_held
         if np.isfinite(self.pressure_noise_Pa):
             d["pressure_noise_Pa"] = round(float(self.pressure_noise_Pa), 1)
+        if np.isfinite(self.encoder_pulse_rad):
+            d["encoder_pulse_deg"] = float(f"{np.rad2deg(self.encoder_pulse_rad):.4g}")
         return d
+
+
+def encoder_pulse(theta: np.ndarray, checks: InputChecks = CHECKS) -> float:
+    """rad: the pulse of the encoder that read the joint angles ``theta`` (T,), found in the data;
+    nan for angles that are not on a grid (a continuous sensor) or that hardly move. Between
+    samples an encoder steps by whole pulses: the smallest steps are one pulse, and at least
+    ``grid_share`` of all steps lie within ``grid_tolerance`` pulses of a whole number of it."""
+    steps = np.abs(np.diff(np.asarray(theta, dtype=float)[np.isfinite(theta)]))
+    steps = steps[steps > 0]
+    if len(steps) < 20:
+        return float("nan")
+    one = steps[steps < 1.5 * steps.min()]
+    pulse = float(np.median(one))
+    k = steps / pulse
+    on_grid = np.mean(np.abs(k - np.round(k)) < checks.grid_tolerance)
+    return pulse if on_grid >= checks.grid_share and len(one) >= 0.05 * len(steps) else float("nan")
+
+
+def _angles(inp_pos: np.ndarray, pos_kind: int, params: np.ndarray) -> np.ndarray:
+    """Joint angles [rad] of a position record (theta as it is; x through the plant's Eq. (3))."""
+    if pos_kind == POS_THETA:
+        return inp_pos
+    return joint_angle(inp_pos, params[P.L_1], params[P.L_2], params[P.L_3])
 
 
 def white_noise_std(a: np.ndarray) -> float:
@@ -96,10 +126,11 @@ def white_noise_std(a: np.ndarray) -> float:
 
 def recording_sensors(sensors: Sensors, inp: FilterInput, checks: InputChecks = CHECKS) -> Sensors:
     """The sensor noise the filter assumes for this recording: ``sensors`` (the configured one),
-    with the pressure noise (the larger of pA's and pB's :func:`white_noise_std`) and, for a
-    linear transducer, the position noise raised to the recording's own where that is above the
+    with the pressure noise (the larger of pA's and pB's :func:`white_noise_std`), a linear
+    transducer's noise, and an encoder's pulse (:func:`encoder_pulse`; for an x computed from
+    it, one pulse in x / sqrt(12)) raised to the recording's own where that is above the
     configured one by more than ``checks.own_noise_factor``. Never lowered: a filter that
-    trusted quieter transmitters than the thresholds were derived with would alarm more often."""
+    trusted quieter sensors than the thresholds were derived with would alarm more often."""
     factor = checks.own_noise_factor
     if factor is None:
         return sensors
@@ -109,7 +140,21 @@ def recording_sensors(sensors: Sensors, inp: FilterInput, checks: InputChecks = 
     own_x = white_noise_std(inp.pos[0]) if inp.linear_position else float("nan")
     if own_x > factor * sensors.x_noise:
         sensors = replace(sensors, x_noise=own_x)
-    return sensors
+    pulse = encoder_pulse(_angles(inp.pos[0], inp.pos_kind, inp.params[0]), checks)
+    if not pulse > factor * sensors.theta_pulse:
+        return sensors
+    # a coarser encoder: its rounding error, constant while the arm is slow or held, grows with
+    # its pulse, and so does the floor that stands for it (Sensors.theta_noise_floor)
+    coarse = replace(sensors, theta_pulse=pulse, theta_noise_floor=sensors.theta_noise_floor * pulse / sensors.theta_pulse)
+    if inp.pos_kind == POS_THETA:
+        return coarse
+    # x computed from it: the same, in x
+    steps = np.abs(np.diff(inp.pos[0]))
+    theta_steps = np.abs(np.diff(_angles(inp.pos[0], POS_X, inp.params[0])))
+    one = (theta_steps > 0.5 * pulse) & (theta_steps < 1.5 * pulse)
+    dx_dtheta = float(np.median(steps[one] / theta_steps[one]))
+    own_x = dx_dtheta * np.hypot(pulse / np.sqrt(12.0), coarse.theta_noise_floor)
+    return replace(coarse, x_noise=max(own_x, sensors.x_noise))
 
 
 def encoder_grid_coherence(x: np.ndarray, plant: Plant, checks: InputChecks = CHECKS) -> float:
@@ -130,13 +175,15 @@ def encoder_grid_coherence(x: np.ndarray, plant: Plant, checks: InputChecks = CH
 
 def detect_position_sensor(rec: Recording, plant: Plant, checks: InputChecks = CHECKS) -> str:
     """The position sensor of a recording (fdi.thresholds.SHIPPED_BY_SENSOR): "encoder" for theta
-    or an x computed from the encoder's theta (on its grid), "linear" for any other x. The
+    or an x computed from an encoder's theta (on the SAM encoder's grid, or on a grid of any
+    pulse :func:`encoder_pulse` finds), "linear" for any other x. The
     thresholds depend on it, and so does the filter on an end stop. An x that never moves reads
     as the encoder."""
     if "x" not in rec.signals:
         return "encoder"
-    coherent = encoder_grid_coherence(rec.signals["x"], plant, checks) >= checks.encoder_grid_coherence
-    return "encoder" if coherent else "linear"
+    x = rec.signals["x"]
+    coherent = encoder_grid_coherence(x, plant, checks) >= checks.encoder_grid_coherence
+    return "encoder" if coherent or np.isfinite(encoder_pulse(_angles(x, POS_X, plant.vector()), checks)) else "linear"
 
 
 def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = False,
@@ -178,7 +225,9 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
     return inp, InputReport(samples=rec.n, dt_s=rec.dt, position=column, supply_pressure_measured="pS" in sig,
                             out_of_range_samples=dropped,
                             ignored_optional_columns=sorted(set(rec.signals) & {"v", "xs"}), u_gaps_held=gaps,
-                            pressure_noise_Pa=max(white_noise_std(sig["pA"]), white_noise_std(sig["pB"])))
+                            pressure_noise_Pa=max(white_noise_std(sig["pA"]), white_noise_std(sig["pB"])),
+                            encoder_pulse_rad=encoder_pulse(_angles(inp.pos[0], inp.pos_kind, inp.params[0]), checks)
+                            if sensor == "encoder" else float("nan"))
 
 
 def _drop(name: str, t, column: str, a: np.ndarray, bad: np.ndarray, unit: str, valid: str, drop: bool,

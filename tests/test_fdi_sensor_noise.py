@@ -1,6 +1,7 @@
-"""A recording's own transmitter noise: estimated from the data, and assumed by the filter and
-the likelihood bank where it is above the configured 20 kPa (noisier transmitters than the
-thresholds were derived with must not read as a model that does not fit, or as a fault)."""
+"""A recording's own sensor noise (its transmitters' white noise, its encoder's pulse): found in
+the data, and assumed by the filter and the likelihood bank where it is above the configured one
+(noisier sensors than the thresholds were derived with must not read as a model that does not
+fit, or as a fault)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sam import load_plant
+from sam import P, load_plant
+from sam.geometry import joint_angle, piston_position
 from sam.scenario import load_scenario, run_scenario
 from fdi import FilterConfig, Sensors, replay
 from fdi import offline
-from fdi.recording import filter_input, recording_sensors, white_noise_std
+from fdi.recording import detect_position_sensor, encoder_pulse, filter_input, recording_sensors, white_noise_std
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
 
@@ -82,3 +84,46 @@ def test_a_leak_through_noisy_transmitters_is_found_and_sized(monkeypatch):
     d = replay(_noisy(rec, 60e3, seed=4), load_plant(), cfg=FilterConfig()).diagnosis
     assert d.isolated == ["K_int"]
     assert d.size["K_int"]["value"] == pytest.approx(0.5, rel=0.2)
+
+
+def _coarse_encoder(rec, pulse_deg: float, column: str):
+    """``rec``'s measured columns with the position read by an encoder of ``pulse_deg`` (its
+    theta, or the x computed from it with the plant's geometry)."""
+    p = load_plant().vector()
+    q = np.deg2rad(pulse_deg)
+    theta = np.round(joint_angle(rec.truth["true_x"], p[P.L_1], p[P.L_2], p[P.L_3]) / q) * q
+    pos = theta if column == "theta" else piston_position(theta, p[P.L_1], p[P.L_2], p[P.L_3])
+    m = rec.measured()
+    return replace(m, signals={**{k: v for k, v in m.signals.items() if k not in ("x", "theta")}, column: pos})
+
+
+@pytest.mark.parametrize("pulse_deg", [0.007, 0.036, 0.09])
+def test_encoder_pulse_found_in_the_data(healthy, pulse_deg):
+    """The pulse of an encoder of 0.007 (the SAM's), 0.036 and 0.09 deg is found within 1 % from
+    a 20 s cycle's angles; the true (continuous) angles have none."""
+    rec = _coarse_encoder(healthy, pulse_deg, "theta")
+    assert np.rad2deg(encoder_pulse(rec.signals["theta"])) == pytest.approx(pulse_deg, rel=0.01)
+    p = load_plant().vector()
+    assert np.isnan(encoder_pulse(joint_angle(healthy.truth["true_x"], p[P.L_1], p[P.L_2], p[P.L_3])))
+
+
+def test_x_from_a_coarser_encoder_is_an_encoder(healthy):
+    """An x computed from a 0.036 deg encoder (off the SAM encoder's grid) reads as an encoder,
+    not as a linear transducer, and the filter assumes its pulse."""
+    plant = load_plant()
+    rec = _coarse_encoder(healthy, 0.036, "x")
+    assert detect_position_sensor(rec, plant) == "encoder"
+    inp, report = filter_input(rec, plant)
+    assert np.rad2deg(report.encoder_pulse_rad) == pytest.approx(0.036, rel=0.01)
+    assert recording_sensors(Sensors(), inp).x_noise > 4 * Sensors().x_noise
+
+
+def test_a_coarser_encoder_is_not_a_misfit(monkeypatch):
+    """The healthy 494 kg sine read by a 0.036 deg encoder replays healthy with the encoder's pulse
+    taken from the data; a filter held at the SAM's 0.007 deg reads it as a model that does not fit."""
+    rec = _coarse_encoder(run_scenario(load_scenario(SCENARIOS / "healthy_sine_494kg.toml")), 0.036, "theta")
+    d = replay(rec, load_plant()).diagnosis
+    assert d.status == "healthy" and d.model_fit_alarm_s is None
+    assert d.filter_health["encoder_pulse_deg"] == pytest.approx(0.036, rel=0.01)
+    monkeypatch.setattr(offline, "recording_sensors", lambda sensors, inp: sensors)
+    assert replay(rec, load_plant()).diagnosis.model_fit_alarm_s is not None
