@@ -70,17 +70,18 @@ def sqrt(typingctx, x):
 def quot(a, b):
     """a / b. Between float64 scalars (and arrays) an IEEE division, bit for bit. Between float32
     scalars (the GSA's single-precision kernel) the division may be done as a product with the
-    reciprocal ("arcp"), which LLVM shares between divisions by one value, hoists out of loops
-    when the divisor is a constant of the run, and computes by the SIMD reciprocal estimate and
-    a Newton step (within 2 float32 ulp of the quotient, against a division's 0.5): divisions are
-    the step's dearest instructions."""
+    reciprocal, which LLVM shares between divisions by one value and computes by the SIMD
+    reciprocal estimate and a Newton step: within 2 float32 ulp of the quotient (a division's is
+    0.5), at a fraction of a division's cost, the step's dearest instruction."""
     raise NotImplementedError("sam.simd.quot runs compiled (numba)")
 
 
 @intrinsic
 def _quot_arcp(typingctx, a, b):
     """a / b of two float32 with LLVM's fast-math flags arcp (the reciprocal may be used) and ninf
-    (no operand or result is infinite, which lets the reciprocal estimate through)."""
+    (promising finite operands, which the reciprocal estimate needs). An infinite operand or a zero
+    divisor then gives NaN, where IEEE gives inf or 0: only a run that has already gone non-finite
+    meets one, and the GSA's NaN/inf check catches it either way."""
     if not a == b == types.float32:
         raise TypingError(f"_quot_arcp takes two float32, got {a}, {b}")
 
