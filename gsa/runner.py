@@ -9,7 +9,8 @@ the run's fingerprint, checksums, a lock against a second run into the folder;
 see :mod:`chunkstore`)::
 
     OUT/manifest.json             fingerprint of the run + layout (written first)
-    OUT/chunks/chunk_00000.npz    "Y": rows [0, chunk_size) as float64 (rows, M)
+    OUT/chunks/chunk_00000.npz    "Y": rows [0, chunk_size) as float64 (rows, M), or float32
+                                  for a model that computes in single precision
     OUT/chunks/chunk_00001.npz    "Y": rows [chunk_size, 2 chunk_size) ...
     OUT/chunks/SHA256SUMS         checksums of the finished chunks
     OUT/nonfinite.json            only if some runs returned NaN/inf
@@ -20,7 +21,9 @@ equals an uninterrupted one bit for bit, whatever the executor, worker count or
 chunk size.
 
 Model contract: ``model(X)`` with X (n, k) float64 in parameter units returns
-(n, M) float64 (or (n,) when M = 1), row i depending only on X[i]. For the
+(n, M) float64 (or (n,) when M = 1), row i depending only on X[i]; float32 if every
+value is a float32 (a single-precision model: its chunks take half the disk and the
+time to write; Y is float64 either way). For the
 ``"processes"`` and ``"dask"`` executors it must be picklable: a module-level
 function or a :func:`functools.partial` of one (no lambdas or closures).
 """
@@ -48,6 +51,8 @@ from gsa.problem import Problem
 FORMAT = "gsa-run/2"
 NONFINITE_POLICIES = ("raise", "report")
 NONFINITE_FILE = "nonfinite.json"
+#: dtypes of a chunk's outputs on disk (float32: a single-precision model's, held exactly)
+CHUNK_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))
 
 
 def chunk_key(index: int) -> str:
@@ -242,9 +247,9 @@ def _chunk_outputs(arrays: dict, index: int, bounds: tuple[int, int], M: int, pa
     """The outputs of a chunk read back from the store, checked against the run's layout."""
     Y = arrays.get("Y")
     rows = bounds[1] - bounds[0]
-    if Y is None or Y.shape != (rows, M) or Y.dtype != np.float64:
+    if Y is None or Y.shape != (rows, M) or Y.dtype not in CHUNK_DTYPES:
         found = "no array 'Y'" if Y is None else f"{Y.dtype} {Y.shape}"
-        raise GSAError(f"{path}: expected an array 'Y' of float64 ({rows}, {M}), found {found}")
+        raise GSAError(f"{path}: expected an array 'Y' of float64 or float32 ({rows}, {M}), found {found}")
     return Y
 
 
@@ -252,7 +257,8 @@ def _chunk_outputs(arrays: dict, index: int, bounds: tuple[int, int], M: int, pa
 
 
 def _evaluate(model, X: np.ndarray, index: int, bounds: tuple[int, int], M: int) -> dict:
-    """One chunk of the model, checked against the model contract: {"Y": (rows, M) float64}."""
+    """One chunk of the model, checked against the model contract: {"Y": (rows, M) float64, or
+    float32 as the model returned it}."""
     rows = bounds[1] - bounds[0]
     Y = np.asarray(model(np.asarray(X, dtype=np.float64)))
     if Y.ndim == 1 and M == 1:
@@ -264,4 +270,5 @@ def _evaluate(model, X: np.ndarray, index: int, bounds: tuple[int, int], M: int)
         )
     if not (np.issubdtype(Y.dtype, np.number) or Y.dtype == bool) or np.iscomplexobj(Y):
         raise GSAError(f"the model returned dtype {Y.dtype} for chunk {index}; expected float64")
-    return {"Y": np.ascontiguousarray(Y, dtype=np.float64)}
+    dtype = np.float32 if Y.dtype == np.float32 else np.float64
+    return {"Y": np.ascontiguousarray(Y, dtype=dtype)}

@@ -76,15 +76,29 @@ class SamModel:
         return tuple(names), tuple(times)
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
-        """X (n, k) in the study's units -> Y (n, n_outputs)."""
+        """X (n, k) in the study's units -> Y (n, n_outputs): float64, or float32 when the step
+        runs in single precision (every value a float32 the step computed, the steady-state
+        means rounded to float32; the runner stores such chunks at half the size)."""
         if self.threads is not None:
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
         params = np.tile(self.base, (X.shape[0], 1))
         params[:, list(self.columns)] = X * self.scales
-        res = sam.simulate_batch(params, self.u, self.dt, time_varying=self.time_varying,
-                                 record_at=self.record_at, channels=self.signals, precision=self.precision)
-        steady = self.record_at >= self.steady_from
-        blocks = []
-        for s in self.signals:
-            blocks += [res[s], res[s][:, steady].mean(axis=1, keepdims=True)]
-        return np.hstack(blocks)
+        # Recorded straight into the output layout: per signal its instants, then a free column
+        # for its steady state (no stacking copy of a chunk's outputs).
+        n_rec = len(self.record_at)
+        Y = np.empty((X.shape[0], len(self.signals), n_rec + 1), np.dtype(self.precision))
+        sam.simulate_batch(params, self.u, self.dt, time_varying=self.time_varying, record_at=self.record_at,
+                           channels=self.signals, precision=self.precision, out=Y)
+        Y[:, :, n_rec] = self._steady_means(Y[:, :, :n_rec])
+        return Y.reshape(X.shape[0], -1)
+
+    def _steady_means(self, rec: np.ndarray) -> np.ndarray:
+        """(n, n_signals) float64 mean of the recorded instants ``rec`` (n, n_signals, n_rec) from
+        ``steady_from`` on (NaN if none), summed in time order."""
+        first = int(np.searchsorted(self.record_at, self.steady_from))  # record_at is sorted
+        if first == rec.shape[2]:
+            return np.full(rec.shape[:2], np.nan)
+        total = rec[:, :, first].astype(np.float64)
+        for r in range(first + 1, rec.shape[2]):
+            total += rec[:, :, r]
+        return total / (rec.shape[2] - first)

@@ -37,7 +37,7 @@ from .hydraulics import (
 )
 from . import views
 from .params import P
-from .simd import float_type, sqrt, where
+from .simd import float_type, quot, sqrt, where
 
 # error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
 jit = numba.njit(cache=True, error_model="numpy")
@@ -217,7 +217,7 @@ def rates(y, u, p, d, j, leaks=True, effects=True, f=np.float64):
     cos_theta = cos_joint_angle(x, L_1, L_2, L_3, f)
     sin_theta = sqrt(f(1.0) - cos_theta * cos_theta)
     r = torque_arm_cs(x, sin_theta, L_1, L_2, L_3)
-    inv_r = f(1.0) / r  # divisions are the step's dearest operations: one here serves three
+    inv_r = quot(f(1.0), r)  # divisions are the step's dearest operations: one here serves three
     inv_m_red = r * r * d[D.inv_J_tot, j]  # 1 / m_reduced, Eq. (20)
     tau = load_torque_cs(
         cos_theta, sin_theta, d[D.cos_level, j], d[D.sin_level, j], d[D.cos_cog, j], d[D.sin_cog, j],
@@ -258,7 +258,7 @@ def stop_travel_velocity(x, v, dt, x_end, f=np.float64):
     retracts = (v < f(0.0)) & (x + dt * v < f(0.0))
     extends = (v > f(0.0)) & (x + dt * v > x_end)
     travel = where(retracts, -max(x, f(0.0)), max(x_end - x, f(0.0)))
-    return where(retracts | extends, travel / dt, v)
+    return where(retracts | extends, quot(travel, dt), v)
 
 
 @jit
@@ -267,7 +267,7 @@ def _stiff_share(hG, f=np.float64):
     of its implicit part that keeps a turbulent path's step monotone (for ``q = k sqrt(dp)``
     the step multiplies dp by 1 - hG / (1 + w hG) >= 0; at w = 1 - 1/hG it lands, 0). It is 0
     up to hG = 1, where forward Euler cannot overshoot, and grows continuously from there."""
-    return where(hG > f(1.0), f(1.0) - f(1.0) / hG, f(0.0))
+    return where(hG > f(1.0), f(1.0) - quot(f(1.0), hG), f(0.0))
 
 
 @jit
@@ -289,7 +289,7 @@ def stiff_pressure_rates(r_A, r_B, h_A, h_B, a, b, g, f=np.float64):
     m_A = f(1.0) + h_A * (a + g)
     m_B = f(1.0) + h_B * (b + g)
     det = m_A * m_B - h_A * h_B * g * g
-    return (r_A * m_B + h_A * g * r_B) / det, (r_B * m_A + h_B * g * r_A) / det
+    return quot(r_A * m_B + h_A * g * r_B, det), quot(r_B * m_A + h_B * g * r_A, det)
 
 
 @jit

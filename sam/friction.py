@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .simd import exp
+from .simd import exp, quot
 
 # error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
 jit = numba.njit(cache=True, error_model="numpy")
@@ -19,7 +19,7 @@ jit = numba.njit(cache=True, error_model="numpy")
 @jit
 def stribeck(v, F_C, F_S, v_s):
     """g(v) = F_C + (F_S - F_C) exp(-(v/v_s)^2) [N]: the steady-state friction magnitude."""
-    return F_C + (F_S - F_C) * exp(-((v / v_s) ** 2))
+    return F_C + (F_S - F_C) * exp(-(quot(v, v_s) ** 2))
 
 
 @jit
@@ -31,7 +31,7 @@ def seal_loaded(F, p_A, p_B, k_fric_p, f=np.float64):
 @jit
 def bristle_rate(v, z, g, sigma_0):
     """dz/dt [m/s] of the bristle deflection z: v - sigma_0 |v| z / g(v) (Eq. (19), 7th row)."""
-    return v - sigma_0 * np.abs(v) * z / g
+    return v - quot(sigma_0 * np.abs(v) * z, g)
 
 
 @jit

@@ -28,6 +28,7 @@ import numba
 import numpy as np
 
 from .constants import G
+from .simd import quot
 
 HALF_PI = np.pi / 2  #: rad, the double nearest pi/2: a quarter turn for quarter_turn_cos_sin
 
@@ -51,7 +52,7 @@ def stroke_end(x_max, theta_max, L_1, L_2, L_3):
 @jit
 def cos_joint_angle(x, L_1, L_2, L_3, f=np.float64):
     """cos(theta) from the piston position x [m]: Eq. (3) solved for theta (``f``: the float type)."""
-    return (L_1**2 + L_2**2 - (x + L_3) ** 2) / (f(2.0) * L_1 * L_2)
+    return quot(L_1**2 + L_2**2 - (x + L_3) ** 2, f(2.0) * L_1 * L_2)
 
 
 @jit
@@ -63,7 +64,7 @@ def joint_angle(x, L_1, L_2, L_3):
 @jit
 def torque_arm_cs(x, sin_theta, L_1, L_2, L_3):
     """Eq. (5): r [m], given the piston position x [m] and sin(theta) at that x."""
-    return L_1 * L_2 * sin_theta / (x + L_3)
+    return quot(L_1 * L_2 * sin_theta, x + L_3)
 
 
 @jit

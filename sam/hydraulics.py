@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from .constants import KAPPA_AIR, LEAK_REFERENCE_DP, LPM, P_ATM, P_CAVITATION
-from .simd import sqrt, where
+from .simd import quot, sqrt, where
 
 # error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
 jit = numba.njit(cache=True, error_model="numpy")
@@ -84,7 +84,7 @@ def turbulent_flow_conductance(k, dp, f=np.float64):
     and ``G = k / sqrt(max(|dp|, DP_CONDUCTANCE_MIN))``, from one square root. The same numbers
     to the last bit."""
     root = sqrt(f(4.0) * abs(dp))
-    return np.copysign(k * f(0.5) * root, dp), f(2.0) * k / max(root, f(_ROOT_MIN))
+    return np.copysign(k * f(0.5) * root, dp), quot(f(2.0) * k, max(root, f(_ROOT_MIN)))
 
 
 _SQRT_DP_MIN = math.sqrt(DP_CONDUCTANCE_MIN)
@@ -178,7 +178,7 @@ def leak_conductance(q, dp, K, f=np.float64):
     that passes ``q`` at ``dp``: from the flow already computed, a division and no square root;
     below |dp| = DP_CONDUCTANCE_MIN the chord there, ``K / sqrt(DP_CONDUCTANCE_MIN)``; 0 without
     the leak."""
-    G = where(abs(dp) < f(DP_CONDUCTANCE_MIN), K / f(_SQRT_DP_MIN), abs(q) / abs(dp))
+    G = where(abs(dp) < f(DP_CONDUCTANCE_MIN), quot(K, f(_SQRT_DP_MIN)), quot(abs(q), abs(dp)))
     return where(K == f(0.0), f(0.0), G)
 
 
@@ -240,7 +240,7 @@ def inverse_capacitance(V, p, B_eff, air_fraction, C_hose, f=np.float64, air=Tru
     ``Q_net`` includes the piston's displacement flow. ``air=False`` promises air_fraction = 0
     (the kernel's batches without the effect: no powers to compute)."""
     B = effective_bulk_modulus(p, B_eff, air_fraction, f) if air else B_eff
-    return B / (V + C_hose * B)  # = 1 / (V/B + C_hose), with one division
+    return quot(B, V + C_hose * B)  # = 1 / (V/B + C_hose), with one division
 
 
 def supply_flow_array(x_s, p_A, p_B, p):

@@ -1,4 +1,5 @@
-"""Scalar building blocks that vectorise across lanes: a branch-free select and an exponential.
+"""Scalar building blocks that vectorise across lanes: a branch-free select, an exponential and
+a division that single precision may do by the reciprocal.
 
 The model's kernel advances many runs ("lanes") in one inner loop, which LLVM's loop vectoriser
 turns into SIMD code when the loop body is straight-line arithmetic. Two things stop it:
@@ -64,6 +65,37 @@ def sqrt(typingctx, x):
         return builder.call(cgutils.get_or_insert_function(builder.module, fnty, name), args)
 
     return sig, codegen
+
+
+def quot(a, b):
+    """a / b. Between float64 scalars (and arrays) an IEEE division, bit for bit. Between float32
+    scalars (the GSA's single-precision kernel) the division may be done as a product with the
+    reciprocal, which LLVM shares between divisions by one value and computes by the SIMD
+    reciprocal estimate and a Newton step: within 2 float32 ulp of the quotient (a division's is
+    0.5), at a fraction of a division's cost, the step's dearest instruction."""
+    raise NotImplementedError("sam.simd.quot runs compiled (numba)")
+
+
+@intrinsic
+def _quot_arcp(typingctx, a, b):
+    """a / b of two float32 with LLVM's fast-math flags arcp (the reciprocal may be used) and ninf
+    (promising finite operands, which the reciprocal estimate needs). An infinite operand or a zero
+    divisor then gives NaN, where IEEE gives inf or 0: only a run that has already gone non-finite
+    meets one, and the GSA's NaN/inf check catches it either way."""
+    if not a == b == types.float32:
+        raise TypingError(f"_quot_arcp takes two float32, got {a}, {b}")
+
+    def codegen(context, builder, signature, args):
+        return builder.fdiv(args[0], args[1], flags=("arcp", "ninf"))
+
+    return a(a, b), codegen
+
+
+@overload(quot, jit_options={"cache": True, "inline": "always", "error_model": "numpy"})
+def _quot(a, b):
+    if a == b == types.float32:
+        return lambda a, b: _quot_arcp(a, b)
+    return lambda a, b: a / b
 
 
 def exp(x):

@@ -109,6 +109,7 @@ def simulate_batch(
     substeps: int = 1,
     scheme: str = "euler",
     precision: str = "float64",
+    out: np.ndarray | None = None,
 ) -> BatchResult:
     """Simulate a batch of runs from their parameter vectors.
 
@@ -128,7 +129,11 @@ def simulate_batch(
             (:class:`sam.dynamics.Scheme`). The defaults are Eq. (22) at ``dt``.
         precision: ``"float64"``, or ``"float32"``: the step's arithmetic in single precision,
             about 1.4x faster (for the GSA, whose indices tolerate it: docs/benchmarks.md). The
-            states returned are float64 either way.
+            states returned are float64 either way, unless ``out`` says otherwise.
+        out: where to record, a C-contiguous float64 (or, for ``precision="float32"``, float32)
+            array (n_runs, len(channels), >= n_rec) whose first n_rec columns receive the recorded
+            instants (a caller's layout with room for more, e.g. the GSA's steady-state column,
+            without a copy); the returned states are views of it. Default: a new float64 array.
     """
     if scheme not in SCHEMES:
         raise ValueError(f"scheme must be one of {sorted(SCHEMES)}, got {scheme!r}")
@@ -148,14 +153,27 @@ def simulate_batch(
         record_at = np.unique(np.r_[np.arange(0, n_steps + 1, record_every), n_steps])
     record_at = np.ascontiguousarray(record_at, dtype=np.int64)
     chan_idx = np.array([S[c] for c in channels], dtype=np.int64)
-    out = np.empty((n_runs, len(chan_idx), len(record_at)))
+    out = _record_buffer(out, (n_runs, len(chan_idx), len(record_at)), precision)
     flags = np.zeros(n_runs, dtype=np.int64)
     rederive = bool(DERIVE_INPUTS.intersection(time_varying or {}))
     leaks, effects = _variant(params, tv_cols, tv_vals)
     _simulate_kernel(x0, params, u2, tv_cols, tv_vals, rederive, float(dt), n_steps, record_at, chan_idx, out, flags,
                      int(substeps), int(SCHEMES[scheme]), leaks, effects, PRECISIONS[precision])
-    states = {c: out[:, j, :] for j, c in enumerate(channels)}
+    states = {c: out[:, j, : len(record_at)] for j, c in enumerate(channels)}
     return BatchResult(record_at * dt, states, (flags & FLAG_CAVITATION) != 0)
+
+
+def _record_buffer(out: np.ndarray | None, shape: tuple[int, int, int], precision: str) -> np.ndarray:
+    """``out`` checked against the recording's ``shape`` (or a new float64 array of it)."""
+    if out is None:
+        return np.empty(shape)
+    allowed = (np.float64, np.float32) if precision == "float32" else (np.float64,)
+    if (not isinstance(out, np.ndarray) or out.dtype not in allowed or not out.flags.c_contiguous
+            or out.shape[:2] != shape[:2] or out.ndim != 3 or out.shape[2] < shape[2]):
+        raise ValueError(f"out must be a C-contiguous {' or '.join(np.dtype(t).name for t in allowed)} array "
+                         f"({shape[0]}, {shape[1]}, >= {shape[2]}), got {getattr(out, 'dtype', type(out))} "
+                         f"{getattr(out, 'shape', '')}")
+    return out
 
 
 def _variant(params: np.ndarray, tv_cols: np.ndarray, tv_vals: np.ndarray) -> tuple[bool, bool]:

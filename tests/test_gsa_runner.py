@@ -308,3 +308,23 @@ def test_partial_model_in_processes_and_analysis_shortcut(tmp_path):
     np.testing.assert_array_equal(result.Y, model(design.X))
     direct = analyze(problem, design, model(design.X), n_boot=50, seed=1, output_names=["g"])
     assert_same_indices(result.analyze(n_boot=50, seed=1), direct)
+
+
+def ishigami_single(X):
+    """A single-precision model (module level: picklable): float32 outputs."""
+    return ishigami_pair(X).astype(np.float32)
+
+
+def test_single_precision_chunks_are_stored_as_float32_and_read_back_exactly(design, tmp_path):
+    """A float32 model's chunks hold float32 (half the bytes of float64); Y is float64 with the
+    same values, from a fresh run and from a resumed one."""
+    single = Study("ishigami-single", design.problem, ishigami_single, ("y", "y2"))
+    want = ishigami_single(design.X).astype(np.float64)
+    fresh = run(single, design, tmp_path, chunk_size=1000, progress=False)
+    assert fresh.Y.dtype == np.float64
+    np.testing.assert_array_equal(fresh.Y, want)
+    with np.load(tmp_path / "chunks" / f"{chunk_key(0)}.npz") as z:
+        assert z["Y"].dtype == np.float32 and z["Y"].shape == (1000, 2)
+    resumed = run(single, design, tmp_path, chunk_size=1000, resume=True, progress=False)
+    assert resumed.chunks_computed == 0
+    np.testing.assert_array_equal(resumed.Y, want)

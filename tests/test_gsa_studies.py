@@ -4,12 +4,15 @@ SAM studies at reduced size, and bad input."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import sam
+from gsa import ZeroVarianceWarning, analyze, saltelli_design
 from gsa.studies import load_study
 from gsa.testfunctions import ishigami_indices, sobol_g_indices
 from sam.errors import UserError
@@ -174,6 +177,55 @@ def test_single_precision_reaches_the_model_and_follows_double(tmp_path):
     X = np.random.default_rng(0).uniform(0.0, 5.27e-9, (64, 3))
     Y32, Y64 = single(X), double(X)
     assert 0.0 < np.max(np.abs(Y32 - Y64)[:, :Y64.shape[1] // 3]) < 1e-3 * 1e7  # p_A [Pa], p_S = 10 MPa
+
+
+#: how far any S1 or ST of the leakage study at N = 512 may move when its model steps in float32
+#: (measured 3.2e-6 at worst over its 1201 varying outputs; at N = 10000 see docs/benchmarks.md)
+FLOAT32_INDEX_TOLERANCE = 2e-5
+
+
+def test_single_precision_moves_the_leakage_indices_by_less_than_the_stated_tolerance():
+    """The float32 option, judged where it matters, on the indices: the leakage study's S1 and ST
+    (N = 512, every output) from float32 and from float64 runs of the same design."""
+    spec = load_study(GSA / "paper_leakage.toml")
+    design = saltelli_design(spec.study.problem, N=512, seed=spec.seed)
+    got = {}
+    for precision in ("float64", "float32"):
+        model = dataclasses.replace(spec.study.model, precision=precision)
+        with pytest.warns(ZeroVarianceWarning):  # v at the first instants: the piston has not moved yet
+            got[precision] = analyze(spec.study.problem, design, model(design.X), n_boot=0)
+    a, b = got["float64"], got["float32"]
+    ok = ~a.constant & ~b.constant
+    assert ok.sum() > 1100
+    for name in ("S1", "ST"):
+        move = np.abs(getattr(a, name) - getattr(b, name))[:, ok]
+        assert 0.0 < move.max() < FLOAT32_INDEX_TOLERANCE, (name, move.max())
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_sam_model_outputs_are_the_recorded_states_then_their_steady_means(precision):
+    """The SAM model's output layout: per signal its state at every recorded instant, as
+    sam.simulate_batch records it (bit for bit), then the mean of those from steady_from on
+    (float64 to 1e-15; float32 outputs rounded to float32)."""
+    spec = load_study(GSA / "paper_parameters.toml")
+    model = dataclasses.replace(spec.study.model, precision=precision)
+    X = np.random.default_rng(5).uniform(*np.array(spec.study.problem.bounds).T, (40, 7))
+    Y = model(X)
+    params = np.tile(model.base, (len(X), 1))
+    params[:, list(model.columns)] = X * model.scales
+    res = sam.simulate_batch(params, model.u, model.dt, record_at=model.record_at, channels=model.signals,
+                             precision=precision)
+    n_rec = len(model.record_at)
+    steady = model.record_at >= model.steady_from
+    assert Y.dtype == np.dtype(precision) and Y.shape == (40, 3 * (n_rec + 1))
+    for i, s in enumerate(model.signals):
+        block = Y[:, i * (n_rec + 1) : (i + 1) * (n_rec + 1)]
+        np.testing.assert_array_equal(block[:, :n_rec], res[s])
+        want = res[s][:, steady].mean(axis=1)
+        if precision == "float64":
+            np.testing.assert_allclose(block[:, n_rec], want, rtol=1e-15)
+        else:
+            np.testing.assert_array_equal(block[:, n_rec], want.astype(np.float32))
 
 
 def test_zero_variance_output_is_nan_with_warning_others_compute(tmp_path, capsys):

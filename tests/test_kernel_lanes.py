@@ -22,7 +22,7 @@ from hypothesis import given, settings, strategies as st
 import sam
 from sam import P, S
 from sam.constants import LPM
-from sam.simd import exp
+from sam.simd import exp, quot
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import kernel_before  # noqa: E402  (the step before the lane kernel, frozen)
@@ -176,6 +176,32 @@ def test_the_single_precision_exponential_is_within_two_ulp():
     want = np.exp(xs.astype(np.float64))
     ulp = np.spacing(want.astype(np.float32)).astype(np.float64)
     assert np.all(np.abs(got - want) <= 2.0 * ulp)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _quots(a, b, out):
+    for i in range(np.uint64(len(a))):  # vectorised, as in the lane loops
+        out[i] = quot(a[i], b[i])
+    return out
+
+
+def test_quot_divides_float64_exactly_and_float32_within_two_ulp():
+    """sam.simd.quot: float64 is an IEEE division, bit for bit; float32 may use the reciprocal
+    estimate and a Newton step: within 2 float32 ulp of the exact quotient (1.47 at worst,
+    measured), over quotients spanning 40 decades."""
+    rng = np.random.default_rng(8)
+    a = rng.uniform(-1.0, 1.0, 200_000) * 10.0 ** rng.uniform(-15, 15, 200_000)
+    b = rng.uniform(0.1, 1.0, 200_000) * 10.0 ** rng.uniform(-15, 15, 200_000)
+    np.testing.assert_array_equal(_quots(a, b, np.empty_like(a)), a / b)
+    a32, b32 = a.astype(np.float32), b.astype(np.float32)
+    got = _quots(a32, b32, np.empty_like(a32)).astype(np.float64)
+    want = a32.astype(np.float64) / b32.astype(np.float64)
+    ulp = np.spacing(np.abs(want).astype(np.float32)).astype(np.float64)
+    assert np.all(np.abs(got - want) <= 2.0 * ulp)
+    # an infinite operand or a zero divisor (a run already gone wrong) stays non-finite
+    a32 = np.array([1.0, 1.0, np.inf, 0.0, -1.0] * 8, np.float32)
+    b32 = np.array([0.0, np.inf, 2.0, 0.0, -0.0] * 8, np.float32)
+    assert not np.isfinite(_quots(a32, b32, np.empty_like(a32))).any()
 
 
 def test_single_precision_follows_double_within_its_rounding():
