@@ -119,13 +119,18 @@ class RunResult:
 
 
 def fingerprint(study: Study, design: Design, chunk_size: int) -> dict:
-    """Identity of a run: what a folder's chunks must share to be resumed (estimator-free)."""
+    """Identity of a run: what a folder's chunks must share to be resumed (estimator-free). A
+    model that describes itself (a ``fingerprint()`` method, as the SAM model's: plant, input,
+    step, precision) is part of it, so that a study file edited between two runs into one
+    folder is refused rather than mixed."""
+    described = getattr(study.model, "fingerprint", None)
     return {
         "format": FORMAT,
         "study": study.name,
         **design.fingerprint(),
         "chunk_size": chunk_size,
         "output_names": list(study.output_names),
+        **({"model": described()} if callable(described) else {}),
     }
 
 

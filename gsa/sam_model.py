@@ -8,6 +8,7 @@ and returns the outputs at the requested instants, plus a steady-state value.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numba
@@ -60,6 +61,19 @@ class SamModel:
     time_varying: dict | None = None
     threads: int | None = None
     precision: str = "float64"
+
+    def fingerprint(self) -> str:
+        """sha256 of what the outputs depend on (not ``threads``): the parameter row, the
+        factors' columns and scales, the input, the step, the recorded instants, the signals, the
+        steady window, the time-varying profiles and the precision."""
+        h = hashlib.sha256()
+        for a in (self.base, np.asarray(self.columns), self.scales, self.u, self.record_at):
+            h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+        h.update(repr((float(self.dt), tuple(self.signals), int(self.steady_from), self.precision)).encode())
+        for name, profile in sorted((self.time_varying or {}).items()):
+            h.update(name.encode())
+            h.update(np.ascontiguousarray(profile, dtype=np.float64).tobytes())
+        return h.hexdigest()
 
     @property
     def n_outputs(self) -> int:

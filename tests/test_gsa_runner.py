@@ -10,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from chunkstore import StoreWarning
 from gsa import GSAError, Study, analyze, run, saltelli_design
 from gsa import testfunctions as tf
 from gsa.runner import chunk_key
+from gsa.studies import load_study
 
 REPO = Path(__file__).resolve().parents[1]
 N = 2**9  # 2560 runs for Ishigami
@@ -328,3 +330,33 @@ def test_single_precision_chunks_are_stored_as_float32_and_read_back_exactly(des
     resumed = run(single, design, tmp_path, chunk_size=1000, resume=True, progress=False)
     assert resumed.chunks_computed == 0
     np.testing.assert_array_equal(resumed.Y, want)
+
+
+def test_resume_refuses_a_model_described_otherwise(study, design, tmp_path):
+    """A model that describes itself (the SAM model: plant, input, step, precision) is part of the
+    run's identity: the same study name with the model edited is refused, not mixed."""
+
+    class Described:
+        def __init__(self, precision):
+            self.precision = precision
+
+        def __call__(self, X):
+            return study.model(X)
+
+        def fingerprint(self):
+            return f"model-{self.precision}"
+
+    first = Study(study.name, study.problem, Described("float64"), study.output_names)
+    run(first, design, tmp_path, chunk_size=512, progress=False)
+    edited = Study(study.name, study.problem, Described("float32"), study.output_names)
+    with pytest.raises(GSAError, match=r"model is 'model-float64' there, 'model-float32' here"):
+        run(edited, design, tmp_path, chunk_size=512, resume=True, progress=False)
+
+
+def test_sam_model_fingerprint_follows_what_the_outputs_depend_on():
+    """The SAM model's fingerprint changes with the precision and the step, not with threads."""
+    model = load_study(Path(__file__).resolve().parents[1] / "scenarios" / "gsa" / "paper_leakage.toml").study.model
+    assert model.fingerprint() == replace(model, threads=1).fingerprint()
+    assert model.fingerprint() != replace(model, precision="float32" if model.precision == "float64"
+                                           else "float64").fingerprint()
+    assert model.fingerprint() != replace(model, dt=model.dt / 2).fingerprint()
