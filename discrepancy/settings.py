@@ -51,7 +51,7 @@ class Settings:
     #: ...and a segment whose squared error that changes by more than this share is not scored
     start_sensitive_share: float = 1.0
     #: decay times (1 / sigma, sigma the decay rate of the model's hydraulic mode, slowest over the
-    #: stroke: simulation.hydraulic_decay_rate) over which every segment's start state (p_A, p_B, v)
+    #: stroke: simulation.hydraulic_decay_rate) over which every segment's start state (p_A, p_B, v, z)
     #: is estimated under the hypothesis being judged (SegmentSimulator.settled_states); 0: every
     #: segment starts from the smoothed measurement. After 3 decay times a start error's ringing is
     #: down to 5 %

@@ -80,9 +80,9 @@ SIGNALS = ("pA", "pB", "x")
 TRANSMITTED = ("pA", "pB")
 #: Measurement-side parameters: not plant parameters, applied to the simulated pressures.
 MEAS_PARAMS = ("tau_sensor", "delay_sensor")
-#: Steps of the start state for :meth:`SegmentSimulator.settled_states`' finite differences (Pa, Pa, m/s):
+#: Steps of the start state for :meth:`SegmentSimulator.settled_states`' finite differences (Pa, Pa, m/s, m):
 #: small against the transmitters' and the velocity estimate's errors, large against round-off.
-START_STEP = {"pA": 1e4, "pB": 1e4, "v": 1e-3}
+START_STEP = {"pA": 1e4, "pB": 1e4, "v": 1e-3, "z": 1e-6}
 #: Floors of the per-signal scales (a signal that barely moves is weighted by its noise, not by zero).
 SCALE_FLOOR = {"pA": 1e5, "pB": 1e5, "x": 2e-3}
 
@@ -223,11 +223,12 @@ class SegmentSimulator:
     def settled_states(self, params: np.ndarray, meas: np.ndarray | None, x0: np.ndarray, decay_times: float,
                        time_varying: dict[str, np.ndarray] | None = None) -> np.ndarray:
         """(m * n_seg, 7) start states consistent with each parameter vector: the measured start ``x0``
-        corrected in p_A, p_B and v by one Gauss-Newton step of the segment's weighted error over its
+        corrected in p_A, p_B, v and the bristle deflection z (LuGre, Eq. (17)) by one Gauss-Newton step of the segment's weighted error over its
         first ``decay_times`` / sigma seconds, sigma [1/s] the decay rate of the model's hydraulic mode
         (:func:`hydraulic_decay_rate`, its slowest over the stroke).
 
-        A start state a few kPa or mm/s off rings the lightly damped hydraulic mode for about 1 / sigma,
+        A start state a few kPa or mm/s off, or a start in stick-slip whose bristles hold another force
+        than the measured acceleration says, rings the lightly damped hydraulic mode for about 1 / sigma,
         and differently under each hypothesis (entrained air softens the oil spring); estimating it
         under each model, as system identification's model comparisons estimate initial conditions,
         keeps that ringing from being scored as the model's error. Its effect has decayed after the
@@ -243,7 +244,7 @@ class SegmentSimulator:
         idx = self.seg.starts[:, None] + ev[None, :]
         meas_w = {k: self.data.y[k][idx] for k in SIGNALS}
         mask_w = {k: self.data.scored[k][idx] & self.mask[k].any(axis=1)[:, None] for k in SIGNALS}
-        steps = ((S.p_A, START_STEP["pA"]), (S.p_B, START_STEP["pB"]), (S.v, START_STEP["v"]))
+        steps = ((S.p_A, START_STEP["pA"]), (S.p_B, START_STEP["pB"]), (S.v, START_STEP["v"]), (S.z, START_STEP["z"]))
         X = np.concatenate([x0] + [x0 + np.eye(7)[j] * h for j, h in steps])
         k = len(steps) + 1
         tv = {n: np.tile(np.atleast_2d(v), (k, 1)) for n, v in time_varying.items()} if time_varying else None
@@ -257,8 +258,10 @@ class SegmentSimulator:
 
         r = window_residual(out)
         r0 = r[0]
-        J = (r[1:] - r[:1]) / np.array([h for _, h in steps])[:, None, None, None]  # (3, m, n_seg, N)
-        A = np.einsum("imsn,jmsn->msij", J, J)
+        J = (r[1:] - r[:1]) / np.array([h for _, h in steps])[:, None, None, None]  # (4, m, n_seg, N)
+        # the measured start is one more observation of each chamber pressure (one sample's weight): where the
+        # window cannot see a pressure (a chamber at tank, not scored) the estimate stays at the measurement
+        A = np.einsum("imsn,jmsn->msij", J, J) + np.diag([1 / self.scale["pA"] ** 2, 1 / self.scale["pB"] ** 2, 0.0, 0.0])
         b = -np.einsum("imsn,msn->msi", J, r0)
         delta = np.zeros((m, n_seg, len(steps)))
         for i in range(m):
