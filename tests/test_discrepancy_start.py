@@ -7,7 +7,7 @@ import pytest
 
 import sam
 from discrepancy import Settings, diagnose
-from discrepancy.cases import CASES, make_recording
+from discrepancy.cases import CASES, make_recording, simulate_closed_loop
 from discrepancy.data import prepare
 from discrepancy.diagnose import _of_form
 from discrepancy.generic import _map
@@ -29,53 +29,69 @@ def air20(plant):
     return make_recording(CASE["entrained_air"], 20.0).measured()
 
 
-def _segment_rms_Pa(sim: SegmentSimulator, params: np.ndarray) -> np.ndarray:
-    """(n_seg,) RMS pressure error [Pa] of each segment (both chambers, every sample after the start)."""
-    out = sim.simulate(params[None, :], full=True)
+def _segment_rms_Pa(sim: SegmentSimulator, params: np.ndarray, settle: float = 0.0) -> np.ndarray:
+    """(n_seg,) RMS pressure error [Pa] of each segment (both chambers, the scored samples after the start)."""
+    out = sim.simulate(params[None, :], full=True, settle=settle)
     L, skip = sim.seg.length, int(sim.seg.eval_idx[0])
     err = [out[k][0][:, skip:] - np.stack([sim.data.y[k][s + skip:s + L] for s in sim.seg.starts]) for k in ("pA", "pB")]
     return np.sqrt(np.mean(np.concatenate(err, axis=1) ** 2, axis=1))
 
 
 def test_the_true_plant_fits_every_segment_of_the_air_recording_at_the_noise(plant, air20):
-    """The '1 of 6 held-out segments worse' of the 20 s air case was not a start state: the recording
-    was made without Eq. (7)'s R-dot torque, which the diagnosis models. Made with it, the true
-    plant predicts every 1 s segment within 1.5 times the transmitters' 20 kPa noise; without the
-    term, the long full-speed moves err by several times the noise."""
+    """The 20 s air recording's 'bad segments' had two causes. The recording was made without
+    Eq. (7)'s R-dot torque, which the diagnosis models: without it the long full-speed moves err by
+    several times the transmitters' 20 kPa noise. Made with it, the true plant still errs by up to
+    2.6 times the noise on three segments (the recording's first sample, starts in stick-slip) when
+    they start from the smoothed measurement; started from the state consistent with the model (p_A,
+    p_B, v and the bristles' z estimated over 3 decay times of the hydraulic mode) every segment is
+    within 1.1 times the noise."""
     sim = SegmentSimulator(prepare(air20, plant), 1.0)
-    rms = _segment_rms_Pa(sim, plant.replace(air_fraction=0.01).vector())
-    assert rms.max() < 1.5 * NOISE_PA
+    true = plant.replace(air_fraction=0.01).vector()
+    measured = _segment_rms_Pa(sim, true)
+    assert np.sum(measured > 1.3 * NOISE_PA) == 3 and measured.max() > 2.5 * NOISE_PA
+    assert _segment_rms_Pa(sim, true, Settings().start_decay_times).max() < 1.1 * NOISE_PA
     without = _segment_rms_Pa(sim, plant.replace(air_fraction=0.01, arm_rate_torque=False).vector())
     assert without.max() > 5 * NOISE_PA
 
 
 def test_hydraulic_decay_rate_is_the_mode_of_the_linearised_model(plant):
     """1 / sigma of the default plant's hydraulic mode: about 0.1 s (sigma 9/s at the extended end,
-    where the oil column is longest; 15/s near the retracted end); softer oil (air) decays slower."""
+    where the oil column is longest; 15/s near the retracted end); softer oil decays slower."""
     sigma = hydraulic_decay_rate(plant.vector())
     assert 7.0 < sigma < 11.0
     assert hydraulic_decay_rate(plant.replace(B_eff=3e8).vector()) < sigma
 
 
-def test_a_start_state_off_by_kPa_and_mm_per_s_is_recovered(plant):
-    """Every segment started 300 kPa high in p_A, 200 kPa low in p_B and 5 mm/s off: the settled
-    start returns within 40 kPa (2 noise sigmas) and 2 mm/s of the smoothed measured start, and each
-    segment's window error comes back to that of the measured start."""
-    rec = make_recording(CASE["no_mismatch"], duration=6.0, seed=5).measured()
+def test_the_settled_start_is_near_the_true_state(plant):
+    """Against the true (simulated) state at each segment start of a healthy recording: the settled
+    start from the measured one stays within 0.75 noise sigmas (15 kPa) in both chambers. From a
+    start 3 sigmas high in p_A (60 kPa), 2 low in p_B and 2 mm/s off, the one Gauss-Newton step
+    removes most of the p_A error (mean 60 -> below 30 kPa) and lowers every segment's error; it
+    does not converge from there (every segment starts at rest, where friction is far from
+    linear): the estimate refines a measured start, it does not replace one."""
+    case = CASE["no_mismatch"]
+    rec = make_recording(case, duration=6.0, seed=5).measured()
     sim = SegmentSimulator(prepare(rec, plant), 1.0)
-    p = plant.vector()[None, :]
-    x0 = sim.initial_states(p)
+    p = plant.vector()
+    _, _, truth = simulate_closed_loop(p, 6.0, 1e-3, 5 + case.seed_offset)
+    st, n = sim.seg.starts, Settings().start_decay_times
+    x0 = sim.initial_states(p[None, :])
+    settled = sim.settled_states(p[None, :], None, x0, n)
+    for j, name in ((S.p_A, "p_A"), (S.p_B, "p_B")):
+        assert np.all(np.abs(settled[:, j] - truth[name][st]) < 0.75 * NOISE_PA)
     bad = x0.copy()
-    bad[:, S.p_A] += 3e5
-    bad[:, S.p_B] -= 2e5
-    bad[:, S.v] += 5e-3
-    fixed = sim.settled_states(p, None, bad, Settings().start_decay_times)
-    assert np.all(np.abs(fixed[:, S.p_A] - x0[:, S.p_A]) < 2 * NOISE_PA)
-    assert np.all(np.abs(fixed[:, S.p_B] - x0[:, S.p_B]) < 2 * NOISE_PA)
-    assert np.all(np.abs(fixed[:, S.v] - x0[:, S.v]) < 2e-3)
-    # and the settled start of the measured start stays close to it (nothing to correct beyond noise)
-    again = sim.settled_states(p, None, x0, Settings().start_decay_times)
-    assert np.all(np.abs(again[:, [S.p_A, S.p_B]] - x0[:, [S.p_A, S.p_B]]) < 2 * NOISE_PA)
+    bad[:, S.p_A] += 3 * NOISE_PA
+    bad[:, S.p_B] -= 2 * NOISE_PA
+    bad[:, S.v] += 2e-3
+    fixed = sim.settled_states(p[None, :], None, bad, n)
+    assert np.mean(np.abs(fixed[:, S.p_A] - truth["p_A"][st])) < 1.5 * NOISE_PA
+
+    def rms(x):
+        out = sim._run(p[None, :], None, x, sim.seg.length, None, ("p_A", "p_B", "x"))
+        ev = sim.seg.eval_idx
+        return np.sqrt(sum(np.mean((out[k][0][:, ev] - sim.meas[k]) ** 2, axis=1) for k in ("pA", "pB")) / 2)
+
+    assert np.all(rms(fixed) < rms(bad))
 
 
 def test_start_decay_times_is_validated():
