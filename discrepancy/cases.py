@@ -119,7 +119,9 @@ def simulate_closed_loop(params: np.ndarray, duration: float, dt: float, seed: i
 def make_recording(case: Case, duration: float = 20.0, dt: float = 1e-3, seed: int = 1,
                    plant: sam.Plant | None = None) -> sam.Recording:
     base = plant or sam.load_plant()
-    true_plant = base.replace(**case.plant) if case.plant else base
+    # a real boom has Eq. (7)'s R-dot torque (docs/model.md, "Motion"), and so does the diagnosis' model;
+    # without it, each long fast move of a recording is a mismatch no library effect stands for
+    true_plant = base.replace(arm_rate_torque=True, **case.plant)
     params = true_plant.vector(faults=sam.Faults(**case.faults))
     t, u, states = simulate_closed_loop(params, duration, dt, seed + case.seed_offset, law=case.law)
     sensors = Sensors(pressure_noise_Pa=20e3, encoder_quantisation=True, **case.sensors)

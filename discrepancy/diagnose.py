@@ -261,7 +261,7 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     gen = None
     if generic:
         from .generic import generic_route
-        gen = generic_route(split, data, cal, calib, n_eff, hyps)
+        gen = generic_route(split, data, cal, calib, n_eff, hyps, settle=settings.start_decay_times)
     timings["generic_s"] = time.perf_counter() - t_start
     if gen and gen.get("significant") and not gen["in_library"]:
         if chosen:
@@ -281,10 +281,18 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
         gen["significant_but_library"] = bool(gen.get("significant"))
         if chosen:
             gen["significant"] = False  # a library effect already explains the residual
+        elif gen.get("significant") and (c := _of_form(cands, gen.get("library_effect"))) is not None:
+            # the generic term has a library effect's form: it is that effect, not an unknown one (its fitted
+            # size is the library's); named when the effect's own fit predicts the held-out part better
+            warnings.append(f"{c.name} is named through the generic route: its term {gen['equation']} has the form "
+                            f"of {c.name}, whose own fit alone did not pass every acceptance test")
+            gen["significant"] = False
+            chosen, final = [c], c.result
 
     # ---- verdict
-    fit_table = _fit_table(split, {"nominal": (base, np.zeros(2)), "calibrated": (cal.params, cal.meas),
-                                   **({"augmented": (final.params, final.meas)} if chosen else {})},
+    fit_table = _fit_table(split.settled(settings.start_decay_times),
+                           {"nominal": (base, np.zeros(2)), "calibrated": (cal.params, cal.meas),
+                            **({"augmented": (final.params, final.meas)} if chosen else {})},
                            gen if (gen and gen.get("significant")) else None)
     for c in chosen:
         for name in c.result.at_bounds:
@@ -323,6 +331,15 @@ def _refit(split: Split, cal: FitResult, calib, first: Candidate, starts: list[F
     thetas = [model.theta_of({**vals, **{k: v for k, v in s.values.items() if k in vals}}) for s in starts]
     return fit_by_segment(split, model, thetas, settings.hypothesis_nfev, settings.segment_rounds,
                           settings.segment_round_nfev)
+
+
+def _of_form(cands: list[Candidate], effect: str | None) -> Candidate | None:
+    """The first-round candidate of the library effect ``effect`` (the generic route's term has its
+    form), if its fit raises the held-out fit and lowers the held-out error; else None."""
+    for c in cands:
+        if c.name == effect and c.gain_held > 0.0 and c.fit_after.get("mean", 0.0) > c.fit_before.get("mean", 0.0):
+            return c
+    return None
 
 
 def _rank_key(c: Candidate):
@@ -374,18 +391,24 @@ def _fit_hypothesis(split: Split, cal: FitResult, calib, hyps: list[Hypothesis],
 
 def _judge(split: Split, hyps: list[Hypothesis], res: FitResult, reference: FitResult, n_eff: float,
            signature: float, gate: _Gate, second: bool = False) -> Candidate:
-    """Evidence of a fitted hypothesis against a reference fit: BIC, gains, held-out fit, acceptance."""
+    """Evidence of a fitted hypothesis against a reference fit: BIC, gains, held-out fit, acceptance.
+
+    Both are judged with every segment started from the state consistent with each
+    (``Settings.start_decay_times``, :meth:`SegmentSimulator.settled_states`): a segment whose error
+    is its start's would otherwise count against (or for) whichever model rings less from it."""
+    split = split.settled(gate.settings.start_decay_times)
+    rss = {id(r): _rss(split, r) for r in (res, reference)}
+    (new_fit, new_held), (ref_fit, ref_held) = rss[id(res)], rss[id(reference)]
     k = len(res.free) - len(reference.free)
-    dbic = n_eff * math.log(max(res.rss_fit, 1e-300) / reference.rss_fit) + k * math.log(n_eff)
-    gain_fit = 1 - res.rss_fit / reference.rss_fit
-    gain_held = 1 - res.rss_held / reference.rss_held
+    dbic = n_eff * math.log(max(new_fit, 1e-300) / ref_fit) + k * math.log(n_eff)
+    gain_fit = 1 - new_fit / ref_fit
+    gain_held = 1 - new_held / ref_held
     c = Candidate(list(hyps), res, dbic, gain_fit, gain_held, signature)
     # evidence on all the data (fitting part and held out), for ranking the accepted ones
     n_all = n_eff * (res.n_fit + res.n_held) / res.n_fit
-    c.delta_bic_all = n_all * math.log(max(res.rss_fit + res.rss_held, 1e-300) / (reference.rss_fit + reference.rss_held)) \
-        + k * math.log(n_all)
+    c.delta_bic_all = n_all * math.log(max(new_fit + new_held, 1e-300) / (ref_fit + ref_held)) + k * math.log(n_all)
     n_h = max(n_eff * res.n_held / res.n_fit, 10.0)
-    c.delta_bic_held = n_h * math.log(max(res.rss_held, 1e-300) / reference.rss_held) + k * math.log(n_h)
+    c.delta_bic_held = n_h * math.log(max(new_held, 1e-300) / ref_held) + k * math.log(n_h)
     # segment-wise profile likelihood: each 1 s segment has its own residual variance (profiled out), so
     # the log-likelihood change is a sum over segments of log RSS ratios and every segment counts by its
     # effective sample size, not by the size of its error (one segment with a large start-up error cannot
@@ -393,22 +416,33 @@ def _judge(split: Split, hyps: list[Hypothesis], res: FitResult, reference: FitR
     c.seg_bic_fit, c.seg_bic_held = (_segment_delta_bic(split, res, reference, part, n_eff, k) for part in ("fit", "held"))
     if second:
         c.delta_bic, c.delta_bic_held = c.seg_bic_fit, c.seg_bic_held
-    hs = split.sim_for("held")
-    f_ref = fits(hs, hs.simulate(reference.params[None, :], reference.meas[None, :] if np.any(reference.meas) else None), "held")
-    f_new = fits(hs, hs.simulate(res.params[None, :], res.meas[None, :] if np.any(res.meas) else None), "held")
-    c.fit_before, c.fit_after = f_ref, f_new
+    c.fit_before, c.fit_after = (_held_fits(split, r) for r in (reference, res))
     # strong statistical evidence, on the fitting part and out of sample on the held-out part
     evidence = c.seg_bic_fit < -BIC_STRONG and c.seg_bic_held < -BIC_STRONG
     if not second:
         # a first effect must also matter in practice: before the nominal model is declared inadequate, the
         # effect has to remove a visible share of the error (both parts) and raise the held-out fit
         evidence = (evidence and dbic < -BIC_STRONG and gain_fit > MIN_GAIN and gain_held > MIN_GAIN
-                    and f_new["mean"] - f_ref["mean"] >= MIN_FIT_POINTS)
+                    and c.fit_after["mean"] - c.fit_before["mean"] >= MIN_FIT_POINTS)
     # and beat the model's own error specifically: on every held-out segment where it changes the
     # prediction, and by more than the step floor over the held-out part (discrepancy.floor)
     c.specificity = specific(split, res, reference, gate.floor, gate.n_seg_eff, gate.settings)
     c.accepted = evidence and c.specificity.passed and _away_from_nominal(hyps, res) and _resolvable(hyps, res, split)
     return c
+
+
+def _rss(split: Split, r: FitResult) -> tuple[float, float]:
+    """Squared error of the fit ``r`` on the fitting and the held-out part of ``split`` (its weights, its starts)."""
+    none = np.zeros((1, 0))
+    return tuple(float(np.sum(evaluate(split, Model(r.params, (), r.meas), none, part)[0] ** 2))
+                 for part in ("fit", "held"))
+
+
+def _held_fits(split: Split, r: FitResult) -> dict[str, float]:
+    """Per-signal held-out fit % of the fit ``r``, every segment started as ``split`` starts it."""
+    hs = split.sim_for("held")
+    return fits(hs, hs.simulate(r.params[None, :], r.meas[None, :] if np.any(r.meas) else None,
+                                settle=split.settle), "held")
 
 
 def _segment_delta_bic(split: Split, res: FitResult, reference: FitResult, part: str, n_eff: float,
@@ -473,12 +507,13 @@ def _signatures(split: Split, cal: FitResult, calib, hyps, r_cal: np.ndarray) ->
 
 
 def _fit_table(split: Split, models: dict, gen: dict | None) -> dict:
+    """part -> signal -> fit % of each model, every segment started as ``split`` starts it."""
     table = {}
     for name, (params, meas) in models.items():
         table[name] = {}
         for part in ("fit", "held"):
             sim = split.sim_for(part)
-            out = sim.simulate(params[None, :], meas[None, :] if np.any(meas) else None)
+            out = sim.simulate(params[None, :], meas[None, :] if np.any(meas) else None, settle=split.settle)
             table[name][part] = fits(sim, out, part)
     if gen is not None and "fit_table" in gen:
         table["generic"] = gen["fit_table"]

@@ -83,21 +83,28 @@ class Split:
 
     ``seg_sigma`` (optional): part -> (n_segments_of_part,) residual scale of each segment. The
     residuals of a segment are divided by it (a heteroscedastic noise model: every 1 s segment has
-    its own residual variance), see :func:`segment_scales`.
+    its own residual variance), see :func:`segment_scales`. ``settle``: 0, or the decay times over
+    which every segment's start state is estimated under each model evaluated
+    (:meth:`SegmentSimulator.settled_states`; ``Settings.start_decay_times``).
     """
 
     def __init__(self, fit_sim: SegmentSimulator, held_sim: SegmentSimulator | None = None,
-                 seg_sigma: dict[str, np.ndarray] | None = None):
+                 seg_sigma: dict[str, np.ndarray] | None = None, settle: float = 0.0):
         self.fit_sim = fit_sim
         self.held_sim = held_sim or fit_sim
         self.seg_sigma = seg_sigma
+        self.settle = settle
 
     def sim_for(self, part: str) -> SegmentSimulator:
         return self.fit_sim if part == "fit" else self.held_sim
 
     def weighted(self, seg_sigma: dict[str, np.ndarray]) -> "Split":
         """The same split with per-segment residual scales (the simulators are shared)."""
-        return Split(self.fit_sim, self.held_sim, seg_sigma)
+        return Split(self.fit_sim, self.held_sim, seg_sigma, self.settle)
+
+    def settled(self, decay_times: float) -> "Split":
+        """The same split, every segment started from the state consistent with the model evaluated."""
+        return Split(self.fit_sim, self.held_sim, self.seg_sigma, decay_times)
 
     def n_segments(self, part: str) -> int:
         return int(np.sum(self.sim_for(part).segment_mask(part)))
@@ -109,7 +116,7 @@ def evaluate(split: Split, model: Model, thetas: np.ndarray, part: str = "fit") 
     params, meas = model.build(thetas)
     use_meas = meas if np.any(meas != 0) else None
     tv = model.tv(np.atleast_2d(thetas), sim) if model.tv is not None else None
-    out = sim.simulate(params, use_meas, time_varying=tv)
+    out = sim.simulate(params, use_meas, time_varying=tv, settle=split.settle)
     r = sim.residuals(out, part)
     if split.seg_sigma is not None:
         r = r / _per_sample(split.seg_sigma[part], r.shape[1])[None, :]
@@ -222,7 +229,7 @@ def at(split: Split, model: Model, theta: np.ndarray, nfev: int = 0) -> FitResul
 def unweighted(split: Split, res: FitResult) -> FitResult:
     """``res`` with its squared errors on ``split`` without per-segment scales, comparable with
     every other fit's."""
-    plain = Split(split.fit_sim, split.held_sim)
+    plain = Split(split.fit_sim, split.held_sim, settle=split.settle)
     model = Model(res.params, (), res.meas)
     none = np.zeros((1, 0))
     rss = [float(np.sum(evaluate(plain, model, none, part)[0] ** 2)) for part in ("fit", "held")]

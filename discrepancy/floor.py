@@ -88,18 +88,19 @@ def start_sensitive(sim: SegmentSimulator, params: np.ndarray, settings: Setting
     return flagged & keep
 
 
-def _residual(sim: SegmentSimulator, res: FitResult, part: str) -> np.ndarray:
+def _residual(sim: SegmentSimulator, res: FitResult, part: str, settle: float) -> np.ndarray:
     meas = res.meas[None, :] if np.any(res.meas) else None
-    return sim.residuals(sim.simulate(res.params[None, :], meas), part)[0]
+    return sim.residuals(sim.simulate(res.params[None, :], meas, settle=settle), part)[0]
 
 
 def step_floor(split: Split, cal: FitResult, settings: Settings) -> Floor:
-    """The step floor of the calibrated fit ``cal`` on ``split`` (unweighted)."""
+    """The step floor of the calibrated fit ``cal`` on ``split`` (unweighted; every segment started
+    from the state consistent with ``cal``, as the effects are judged)."""
     shares = {}
     for part in ("fit", "held"):
         sim = split.sim_for(part)
-        r = _residual(sim, cal, part)
-        r_fine = _residual(_finer(sim, settings.floor_refine), cal, part)
+        r = _residual(sim, cal, part, settings.start_decay_times)
+        r_fine = _residual(_finer(sim, settings.floor_refine), cal, part, settings.start_decay_times)
         n_seg = split.n_segments(part)
         e = segment_rss(r - r_fine, n_seg)
         rss = np.maximum(segment_rss(r, n_seg), 1e-300)

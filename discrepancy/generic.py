@@ -92,25 +92,27 @@ def _unit_of(target_unit: str, feat_unit: str) -> str:
     return f"{target_unit} per {feat_unit}"
 
 
-#: term forms -> (effect, in the library?)
+#: term forms -> (effect, the library hypothesis of that form or None)
 _FORMS = [
-    ({("Q_dA", "(p_A - p_B)"), ("Q_dB", "(p_A - p_B)")}, "laminar cylinder bypass leakage (library: bypass_leakage)", True),
+    ({("Q_dA", "(p_A - p_B)"), ("Q_dB", "(p_A - p_B)")}, "laminar cylinder bypass leakage (library: bypass_leakage)",
+     "bypass_leakage"),
     ({("Q_dA", "sgn(dp) sqrt|p_A - p_B|"), ("Q_dB", "sgn(dp) sqrt|p_A - p_B|")},
-     "turbulent internal leakage A->B (the form of a leak fault K_int): not an effect of the library", False),
-    ({("Q_dA", "sqrt|p_A|")}, "turbulent external leakage out of chamber A (the form of a leak fault K_extA): not an effect of the library", False),
-    ({("Q_dB", "sqrt|p_B|")}, "turbulent external leakage out of chamber B (the form of a leak fault K_extB): not an effect of the library", False),
-    ({("Q_dA", "1")}, "a constant outflow from chamber A, as an external leak would cause: not an effect of the library", False),
-    ({("Q_dB", "1")}, "a constant outflow from chamber B, as an external leak would cause: not an effect of the library", False),
-    ({("Q_dA", "p_A")}, "laminar external leakage out of chamber A: not an effect of the library", False),
-    ({("Q_dB", "p_B")}, "laminar external leakage out of chamber B: not an effect of the library", False),
-    ({("F_d", "sgn v"), ("F_d", "|v|"), ("F_d", "v")}, "a friction change (library: friction_level)", True),
-    ({("F_d", "(p_A + p_B) sgn v")}, "pressure-dependent seal friction (library: pressure_friction)", True),
-    ({("F_d", "1"), ("F_d", "x")}, "a load force error (library: load_mass)", True),
+     "turbulent internal leakage A->B (the form of a leak fault K_int): not an effect of the library", None),
+    ({("Q_dA", "sqrt|p_A|")}, "turbulent external leakage out of chamber A (the form of a leak fault K_extA): not an effect of the library", None),
+    ({("Q_dB", "sqrt|p_B|")}, "turbulent external leakage out of chamber B (the form of a leak fault K_extB): not an effect of the library", None),
+    ({("Q_dA", "1")}, "a constant outflow from chamber A, as an external leak would cause: not an effect of the library", None),
+    ({("Q_dB", "1")}, "a constant outflow from chamber B, as an external leak would cause: not an effect of the library", None),
+    ({("Q_dA", "p_A")}, "laminar external leakage out of chamber A: not an effect of the library", None),
+    ({("Q_dB", "p_B")}, "laminar external leakage out of chamber B: not an effect of the library", None),
+    ({("F_d", "sgn v"), ("F_d", "|v|"), ("F_d", "v")}, "a friction change (library: friction_level)", "friction_level"),
+    ({("F_d", "(p_A + p_B) sgn v")}, "pressure-dependent seal friction (library: pressure_friction)", "pressure_friction"),
+    ({("F_d", "1"), ("F_d", "x")}, "a load force error (library: load_mass)", "load_mass"),
 ]
 
 
-def _map(terms: list[tuple[str, str]]) -> tuple[str, bool]:
-    """The named effect a set of (input, feature) terms has the form of, and whether the library holds it."""
+def _map(terms: list[tuple[str, str]]) -> tuple[str, str | None]:
+    """The named effect a set of (input, feature) terms has the form of, and the library hypothesis of
+    that form (None: not in the library)."""
     keys = set(terms)
     best, best_n = None, 0
     for form, text, lib in _FORMS:
@@ -118,7 +120,7 @@ def _map(terms: list[tuple[str, str]]) -> tuple[str, bool]:
         if n > best_n:
             best, best_n = (text, lib), n
     if best is None:
-        return "no known effect has this form: not an effect of the library", False
+        return "no known effect has this form: not an effect of the library", None
     return best
 
 
@@ -281,7 +283,7 @@ def _rank_by_ukf(data: Prepared, final: FitResult, calib, cands, p_S: float, out
 
 
 def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: float, hyps,
-                  n_fit: int = 4, max_terms: int = 2, estimator: str | None = None) -> dict:
+                  n_fit: int = 4, max_terms: int = 2, estimator: str | None = None, settle: float = 0.0) -> dict:
     """Run the generic route on the residual of ``final`` (calibrated model); JSON-able dict ('_*' keys excepted).
 
     1. The unknown inputs Q_dA, Q_dB [m^3/s], F_d [N] are estimated (``estimator``: "ukf", the default
@@ -291,7 +293,9 @@ def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: 
     2. The best ``n_fit`` are fitted on simulation error (with the calibration parameters free), starting
        from their regression coefficient; the BIC-best is kept; then a second term is tried.
     3. ``significant``: BIC falls by more than 10, >= 5 % less squared error on both parts, and
-       >= 0.5 points of mean held-out fit (as for a library hypothesis).
+       >= 0.5 points of mean held-out fit (as for a library hypothesis). The fits % start every segment
+       from the state consistent with each model when ``settle`` > 0 (``Settings.start_decay_times``),
+       as the diagnosis' fit table does.
     """
     estimator = estimator or ESTIMATOR
     note = ""
@@ -318,7 +322,8 @@ def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: 
     ref_fit = float(np.sum(evaluate(split, ref, np.zeros((1, 0)), "fit") ** 2))
     ref_held = float(np.sum(evaluate(split, ref, np.zeros((1, 0)), "held") ** 2))
     hs = split.sim_for("held")
-    ref_fits = fits(hs, hs.simulate(final.params[None, :], final.meas[None, :] if np.any(final.meas) else None), "held")
+    ref_fits = fits(hs, hs.simulate(final.params[None, :], final.meas[None, :] if np.any(final.meas) else None,
+                                    settle=settle), "held")
 
     def try_terms(sel):
         model, start = _term_model(final, calib, [cands[i][0] for i in sel], [coefs[i] for i in sel],
@@ -347,7 +352,7 @@ def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: 
     for part in ("fit", "held"):
         sim = split.sim_for(part)
         pr, meas = model.build(th[None, :])
-        o = sim.simulate(pr, meas if np.any(meas) else None, time_varying=model.tv(th[None, :], sim))
+        o = sim.simulate(pr, meas if np.any(meas) else None, time_varying=model.tv(th[None, :], sim), settle=settle)
         parts[part] = fits(sim, o, part)
     eq = []
     for j, i in enumerate(sel):
@@ -356,9 +361,10 @@ def generic_route(split: Split, data: Prepared, final: FitResult, calib, n_eff: 
         eq.append(f"{t[0]} = {res.values[f.name]:+.3g} {f.unit} x {t[1]}")
         out["terms"].append({"target": t[0], "feature": t[1], "coefficient": res.values[f.name], "unit": f.unit,
                              "at_bound": f.name in res.at_bounds})
-    mapped, in_lib = _map([cands[i][0] for i in sel])
+    mapped, effect = _map([cands[i][0] for i in sel])
     out.update({
-        "equation": "; ".join(eq), "mapped": mapped, "in_library": in_lib, "delta_bic": dbic,
+        "equation": "; ".join(eq), "mapped": mapped, "in_library": effect is not None, "library_effect": effect,
+        "delta_bic": dbic,
         "gain_fit": gain_fit, "gain_held": gain_held, "fit_table": parts, "rss_fit": res.rss_fit,
         "significant": bool(dbic < -10 and gain_fit > 0.05 and gain_held > 0.05
                             and parts["held"]["mean"] - ref_fits["mean"] >= 0.5),

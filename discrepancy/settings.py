@@ -50,3 +50,18 @@ class Settings:
     start_shift_s: float = 0.005
     #: ...and a segment whose squared error that changes by more than this share is not scored
     start_sensitive_share: float = 1.0
+    #: decay times (1 / sigma, sigma the decay rate of the model's hydraulic mode, slowest over the
+    #: stroke: simulation.hydraulic_decay_rate) over which every segment's start state (p_A, p_B, v, z)
+    #: is estimated under the hypothesis being judged (SegmentSimulator.settled_states); 0: every
+    #: segment starts from the smoothed measurement. After 3 decay times a start error's ringing is
+    #: down to 5 %
+    start_decay_times: float = 3.0
+
+    def __post_init__(self):
+        for name in ("max_step_s", "floor_margin", "noise_factor", "start_shift_s", "start_sensitive_share",
+                     "stop_band_m", "low_pressure_Pa", "gap_hold_s", "commissioning_min_speed"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"Settings.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.start_decay_times <= 20.0:
+            raise ValueError(f"Settings.start_decay_times must be within 0-20 decay times of the hydraulic mode, "
+                             f"got {self.start_decay_times!r}")

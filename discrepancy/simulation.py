@@ -24,7 +24,8 @@ import numba
 
 from sam import P, S, simulate_batch
 from sam.measurement import first_order_lag, time_delay
-from sam.dynamics import N_DERIVED, N_STATES, derive, rhs
+from sam.capability import held_state, jacobian
+from sam.dynamics import N_DERIVED, N_STATES, derive, rhs, stroke_ends
 from sam.friction import seal_loaded, stribeck
 
 
@@ -55,11 +56,33 @@ def _bristle_for_balance(x0, u0, params, a_meas, z_max):
 
 from .data import Prepared
 
+
+#: The hydraulic-mechanical states (the spool's modes are driven by the input only and separate).
+_MODE = np.array([S.p_A, S.p_B, S.x, S.v, S.z])
+
+
+def hydraulic_decay_rate(params: np.ndarray, n: int = 5) -> float:
+    """1/s: the slowest decay rate -Re(lambda) of the model's hydraulic mode over the stroke, lambda
+    the oscillatory eigenvalue of the linearised model (the oil columns against the reduced mass,
+    Eq. (20), valve centred, load at rest: :func:`sam.capability.natural_frequency`'s mode) at ``n``
+    positions. A start-state error rings with this mode and has decayed by 1/e after 1 / rate."""
+    ends = float(stroke_ends(params))
+    rates = []
+    for x in np.linspace(0.05 * ends, 0.95 * ends, n):
+        ev = np.linalg.eigvals(jacobian(params, held_state(params, x))[np.ix_(_MODE, _MODE)])
+        ev = ev[np.abs(ev.imag) > 1e-6 * np.abs(ev)]
+        if ev.size:
+            rates.append(-float(np.max(ev.real)))
+    return max(min(rates), 1e-3) if rates else 1.0
+
 SIGNALS = ("pA", "pB", "x")
 #: The signals the measurement-side parameters act on: the pressure transmitters.
 TRANSMITTED = ("pA", "pB")
 #: Measurement-side parameters: not plant parameters, applied to the simulated pressures.
 MEAS_PARAMS = ("tau_sensor", "delay_sensor")
+#: Steps of the start state for :meth:`SegmentSimulator.settled_states`' finite differences (Pa, Pa, m/s, m):
+#: small against the transmitters' and the velocity estimate's errors, large against round-off.
+START_STEP = {"pA": 1e4, "pB": 1e4, "v": 1e-3, "z": 1e-6}
 #: Floors of the per-signal scales (a signal that barely moves is weighted by its noise, not by zero).
 SCALE_FLOOR = {"pA": 1e5, "pB": 1e5, "x": 2e-3}
 
@@ -178,7 +201,7 @@ class SegmentSimulator:
     # ------------------------------------------------------------------ simulate
     def simulate(self, params: np.ndarray, meas: np.ndarray | None = None, *, full: bool = False,
                  time_varying: dict[str, np.ndarray] | None = None,
-                 channels: tuple[str, ...] = ("p_A", "p_B", "x")) -> dict[str, np.ndarray]:
+                 channels: tuple[str, ...] = ("p_A", "p_B", "x"), settle: float = 0.0) -> dict[str, np.ndarray]:
         """Simulated signals for m parameter vectors.
 
         Args:
@@ -186,14 +209,93 @@ class SegmentSimulator:
             meas: (m, 2) sensor lag tau [s] and delay [s] per candidate, or None.
             full: return every sample of each segment rather than the evaluation points.
             time_varying: name -> (m, n_samples) values on the recording's sample grid.
+            settle: 0, or the decay times of the model's hydraulic mode over which each segment's start
+                state is estimated under ``params`` (:meth:`settled_states`).
         Returns: signal -> (m, n_seg, n_eval or L).
         """
         params = np.atleast_2d(params)
-        m = params.shape[0]
-        n_seg, L = len(self.seg.starts), self.seg.length
-        P_all = np.repeat(params, n_seg, axis=0)
         x0 = self.initial_states(params, meas)
-        u = np.tile(self.u_seg, (m, 1))
+        if settle > 0.0:
+            x0 = self.settled_states(params, meas, x0, settle, time_varying)
+        out = self._run(params, meas, x0, self.seg.length, time_varying, channels)
+        return out if full else {k: y[:, :, self.seg.eval_idx] for k, y in out.items()}
+
+    def settled_states(self, params: np.ndarray, meas: np.ndarray | None, x0: np.ndarray, decay_times: float,
+                       time_varying: dict[str, np.ndarray] | None = None) -> np.ndarray:
+        """(m * n_seg, 7) start states consistent with each parameter vector: the measured start ``x0``
+        corrected in p_A, p_B, v and the bristle deflection z (LuGre, Eq. (17)) by one Gauss-Newton step of the segment's weighted error over its
+        first ``decay_times`` / sigma seconds, sigma [1/s] the decay rate of the model's hydraulic mode
+        (:func:`hydraulic_decay_rate`, its slowest over the stroke).
+
+        A start state a few kPa or mm/s off, or a start in stick-slip whose bristles hold another force
+        than the measured acceleration says, rings the lightly damped hydraulic mode for about 1 / sigma,
+        and differently under each hypothesis (entrained air softens the oil spring); estimating it
+        under each model, as system identification's model comparisons estimate initial conditions,
+        keeps that ringing from being scored as the model's error. Its effect has decayed after the
+        window, so the estimate cannot absorb what a parameter does over the rest of the segment.
+        """
+        m, n_seg = params.shape[0], len(self.seg.starts)
+        sigma = min(hydraulic_decay_rate(p) for p in params)
+        W = int(min(self.seg.length, max(10, round(decay_times / sigma / self.data.dt))))
+        # the window is scored from the start's own sample (the scoring skips the first samples: they are the
+        # start's, and here the start is what is estimated), at the scoring's stride
+        stride = int(self.seg.eval_idx[1] - self.seg.eval_idx[0]) if self.seg.eval_idx.size > 1 else 1
+        ev = np.arange(0, W, stride)
+        idx = self.seg.starts[:, None] + ev[None, :]
+        meas_w = {k: self.data.y[k][idx] for k in SIGNALS}
+        mask_w = {k: self.data.scored[k][idx] & self.mask[k].any(axis=1)[:, None] for k in SIGNALS}
+        steps = ((S.p_A, START_STEP["pA"]), (S.p_B, START_STEP["pB"]), (S.v, START_STEP["v"]), (S.z, START_STEP["z"]))
+        X = np.concatenate([x0] + [x0 + np.eye(7)[j] * h for j, h in steps])
+        k = len(steps) + 1
+        tv = {n: np.tile(np.atleast_2d(v), (k, 1)) for n, v in time_varying.items()} if time_varying else None
+        out = self._run(np.tile(params, (k, 1)), None if meas is None else np.tile(meas, (k, 1)), X, W, tv,
+                        ("p_A", "p_B", "x"))
+
+        def window_residual(out):  # (k', m, n_seg, N) weighted residuals over the window
+            r = np.concatenate([np.where(mask_w[s][None], (out[s][:, :, ev] - meas_w[s][None]) / self.scale[s], 0.0)
+                                for s in SIGNALS], axis=2)
+            return np.nan_to_num(r.reshape(-1, m, n_seg, r.shape[-1]), nan=1e3, posinf=1e3, neginf=-1e3)
+
+        r = window_residual(out)
+        r0 = r[0]
+        J = (r[1:] - r[:1]) / np.array([h for _, h in steps])[:, None, None, None]  # (4, m, n_seg, N)
+        # the measured start is one more observation of each chamber pressure (one sample's weight): where the
+        # window cannot see a pressure (a chamber at tank, not scored) the estimate stays at the measurement
+        A = np.einsum("imsn,jmsn->msij", J, J) + np.diag([1 / self.scale["pA"] ** 2, 1 / self.scale["pB"] ** 2, 0.0, 0.0])
+        b = -np.einsum("imsn,msn->msi", J, r0)
+        delta = np.zeros((m, n_seg, len(steps)))
+        for i in range(m):
+            for s in range(n_seg):
+                d = np.sqrt(A[i, s].diagonal())
+                if np.all(d > 0):  # Jacobi-scaled least-norm solve of the normal equations
+                    delta[i, s] = np.linalg.lstsq(A[i, s] / np.outer(d, d), b[i, s] / d, rcond=1e-8)[0] / d
+        # the model is not linear in its start (stick-slip, a valve edge): the full step and a quarter of it
+        # are tried, and each segment keeps whichever of them and the measured start fits its window best
+        tries = [x0] + [self._moved(x0, f * delta, steps) for f in (1.0, 0.25)]
+        tv = {n: np.tile(np.atleast_2d(v), (2, 1)) for n, v in time_varying.items()} if time_varying else None
+        out = self._run(np.tile(params, (2, 1)), None if meas is None else np.tile(meas, (2, 1)),
+                        np.concatenate(tries[1:]), W, tv, ("p_A", "p_B", "x"))
+        cost = np.sum(np.concatenate([r0[None], window_residual(out)]) ** 2, axis=-1)  # (3, m, n_seg)
+        best = np.argmin(cost, axis=0).reshape(-1)
+        return np.stack(tries)[best, np.arange(m * n_seg)]
+
+    @staticmethod
+    def _moved(x0: np.ndarray, delta: np.ndarray, steps) -> np.ndarray:
+        """x0 moved by ``delta`` (m, n_seg, len(steps)) in the states of ``steps``; pressures kept >= 0."""
+        x1 = x0.copy()
+        for c, (j, _) in enumerate(steps):
+            x1[:, j] += delta[..., c].reshape(-1)
+        x1[:, S.p_A] = np.maximum(x1[:, S.p_A], 0.0)
+        x1[:, S.p_B] = np.maximum(x1[:, S.p_B], 0.0)
+        return x1
+
+    def _run(self, params: np.ndarray, meas: np.ndarray | None, x0: np.ndarray, L: int,
+             time_varying: dict[str, np.ndarray] | None, channels: tuple[str, ...]) -> dict[str, np.ndarray]:
+        """Every sample of the first L of each segment from the start states x0: signal -> (m, n_seg, L)."""
+        m = params.shape[0]
+        n_seg = len(self.seg.starts)
+        P_all = np.repeat(params, n_seg, axis=0)
+        u = np.tile(self.u_seg[:, :L * self.data.n_sub], (m, 1))
         tv = None
         if time_varying:
             tv = {}
@@ -203,7 +305,7 @@ class SegmentSimulator:
                 segs = np.broadcast_to(segs, (m, n_seg, L)).reshape(m * n_seg, L)
                 tv[k] = np.repeat(segs, self.data.n_sub, axis=1)
         res = simulate_batch(P_all, u, self.data.dt / self.data.n_sub, x0=x0, time_varying=tv,
-                             record_at=self.record_at, channels=channels, scheme=self.scheme)
+                             record_at=self.record_at[:L], channels=channels, scheme=self.scheme)
         out = {}
         names = {"p_A": "pA", "p_B": "pB", "x": "x"}
         for ch in channels:
@@ -222,7 +324,7 @@ class SegmentSimulator:
                         y[i] += (m0 - y0) * np.exp(-np.arange(L) * self.data.dt / tau)[None, :]
                     if delay > 0:
                         y[i] = time_delay(y[i], self.data.dt, delay)
-            out[key] = y if full else y[:, :, self.seg.eval_idx]
+            out[key] = y
         self.last_cavitated = res.cavitated.reshape(m, n_seg).any(axis=1)
         return out
 

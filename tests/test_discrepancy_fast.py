@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import sam
-from discrepancy import diagnose, library
+from discrepancy import Settings, diagnose, library
 from discrepancy.data import prepare
 from discrepancy.simulation import MEAS_PARAMS, fit_percent
 from sam.measurement import first_order_lag, time_delay
@@ -232,6 +232,7 @@ def _calibrated(rec, plant):
     from discrepancy.fitting import Model, Split, correlation_time, evaluate, fit
     from discrepancy.simulation import SegmentSimulator
 
+    plant = plant.replace(arm_rate_torque=Settings().arm_rate_torque)  # the diagnosis' model (a real boom's)
     data = prepare(rec, plant)
     split = Split(SegmentSimulator(data, 1.0))
     calib = _calibration_params(plant)
