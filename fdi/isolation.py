@@ -201,8 +201,7 @@ def growing(lead: np.ndarray, persist: int) -> np.ndarray:
 
 def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float = -math.inf,
            hidden: np.ndarray | None = None, conf: tuple | None = None, on_stop: np.ndarray | None = None,
-           k_alarm: int = -1, window_end: int = -1, design: BankDesign = DESIGN, persist: int = 0,
-           dt: float | None = None) -> Decision:
+           k_alarm: int = -1, window_end: int = -1, design: BankDesign = DESIGN, persist: int = 0) -> Decision:
     """The bank's decision for run i of ``bank``: the first sample k >= k_from at which the best
     fault beats every other fault by ``margin`` and "none" by ``confirm`` nats, its filter moved
     enough (causal: L_H(k) uses samples up to k). The alarm ``k_alarm`` stands if at some sample
@@ -210,15 +209,14 @@ def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float 
     ``hidden`` (F, T) bool, FAULTS order, recording samples: where each fault cannot show (on an
     end stop): its evidence counts only where it can, and a decision at a sample where the best
     fault cannot show is taken on the data up to the last sample where it could, off the stops
-    (``on_stop`` (T,)). ``conf``: ((best, runner-up), L (2, L), L_none (L,)) from
+    (``on_stop`` (T,)). Every lead is divided by the colour of the leading filter's innovations
+    (:attr:`BankResult.colour`, :mod:`fdi.whiteness`): what a coloured residual adds is not
+    evidence. ``conf``: ((best, runner-up), L (2, L), L_none (L,)[, their colour (2, L)]) from
     :func:`confirmation_bank`: the lead that confirms is then the best fault's over that bank's
     "none" (calibration as uncertain constants), and a fault is named only where that bank ranks
     the pair as the naming bank does (there, holding the calibration would decide the name).
     ``persist`` (samples): the lead that confirms must also be still growing over that many
-    samples (:func:`growing`; 0: not asked). ``dt`` [s], the sampling step: both leads (over
-    "none" and over the runner-up) are taken at their honest size, divided by the colour of their
-    increments (:meth:`BankDesign.honest`, :mod:`fdi.whiteness`): what a model-form error adds
-    sample after sample in step is not evidence. None: every sample counts as independent."""
+    samples (:func:`growing`; 0: not asked)."""
     names = list(bank.names)
     fi = [names.index(h) for h in FAULTS]
     nv = int(bank.n_valid[i])
@@ -226,28 +224,29 @@ def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float 
     start = min(max(0, k_from - int(bank.k0[i])), nv - 1)
     e = last_shown(ll, hidden, int(bank.k0[i]), on_stop)  # each sample's decision uses the data up to e
     shown, e = e >= 0, np.maximum(e, 0)
-    srt = np.sort(ll[:, e], axis=0)
+    # the evidence's honest size: divided by the best filter's innovation colour (fdi.whiteness)
+    colour = np.ones(ll.shape) if bank.colour is None else bank.colour[i][fi, :nv]
+    f_best = colour[np.argmax(ll[:, e], axis=0), e]
+    srt = np.sort(ll[:, e], axis=0) / f_best
     agree = np.ones(len(e), dtype=bool)
     if conf is None:
-        lead = evidence(ll, bank.loglik[i, names.index("none"), :nv], hidden, int(bank.k0[i]))[e]
+        lead = evidence(ll, bank.loglik[i, names.index("none"), :nv], hidden, int(bank.k0[i]))[e] / f_best
     else:
-        pair, ll_c, ll_n = conf
+        pair, ll_c, ll_n, c_colour = conf if len(conf) == 4 else (*conf, None)
         hid = None if hidden is None else hidden[[FAULTS.index(pair[0])]]
-        lead = evidence(ll_c[:1, :nv], ll_n[:nv], hid, int(bank.k0[i]))[e]
+        f_conf = 1.0 if c_colour is None else c_colour[0, :nv][e]
+        lead = evidence(ll_c[:1, :nv], ll_n[:nv], hid, int(bank.k0[i]))[e] / f_conf
         named_held = np.asarray(FAULTS)[np.argmax(ll[:, e], axis=0)]
         agree = named_held == np.asarray(pair)[np.argmax(ll_c[:, :nv][:, e], axis=0)]
-    gap = srt[-1] - srt[-2]  # the best fault's lead over the runner-up
-    if dt is not None:  # their honest sizes: divided by the colour of their increments
-        lead, gap = design.honest(lead, dt), design.honest(gap, dt)
     lead, rising = lead[start:], growing(lead, persist)[start:]
     ok_move = (credible(bank, i, fi, ll, hidden, design)[e] & shown)[start:]
     strong = (lead >= confirm) & rising
     stood = np.flatnonzero(strong & (ok_move | (confirm == -math.inf)))  # -inf: every alarm stands
-    ok = np.flatnonzero((gap[start:] >= margin) & ok_move & strong & agree[start:])
+    ok = np.flatnonzero((srt[-1, start:] - srt[-2, start:] >= margin) & ok_move & strong & agree[start:])
     at = start + int(ok[0]) if len(ok) else nv - 1
     best = int(np.argmax(ll[:, e[at]]))
-    llr = {h: float(ll[q, e[at]] - ll[best, e[at]]) for q, h in enumerate(FAULTS)}
-    llr_none = float(ll[best, e[at]] - bank.loglik[i, names.index("none"), e[at]])
+    llr = {h: float((ll[q, e[at]] - ll[best, e[at]]) / f_best[at]) for q, h in enumerate(FAULTS)}
+    llr_none = float((ll[best, e[at]] - bank.loglik[i, names.index("none"), e[at]]) / f_best[at])
     # size: the best filter's estimate of its constant parameter from all the window's data, minus healthy
     hb = fi[best]
     k0 = int(bank.k0[i])
@@ -320,7 +319,7 @@ def revision(bank: BankResult, i: int, margin: float, d: Decision, ll_single: np
 def confirmation_bank(out: FilterOutput, ref: FilterOutput, bank: BankResult, rows, k0, k1, k_alarm, kept: tuple,
                       ref_rows=None, design: BankDesign = DESIGN) -> list:
     """Per run i of ``rows`` (window [k0[i], k1[i]) of the naming ``bank``): ((best, runner-up),
-    L (2, L), L_none (L,)), the cumulative log-likelihoods of the bank's two best faults at its last
+    L (2, L), L_none (L,), colour (2, L)), the cumulative log-likelihoods of the bank's two best faults at its last
     sample and of "none", all with the reference's calibration states ``kept`` as uncertain
     constants (candidate onsets as the naming bank's); None per run when nothing is kept. Three
     hypotheses, not five: the replay's cost."""
@@ -339,7 +338,7 @@ def confirmation_bank(out: FilterOutput, ref: FilterOutput, bank: BankResult, ro
         cb = run_bank_starts(out, ref, rows[g], k0[g], k1[g], k_alarm[g], ("none",) + pair, ref_rows=rr, kept=kept,
                              design=design)
         for q, i in enumerate(g):
-            res[i] = (pair, cb.loglik[q, 1:], cb.loglik[q, 0])
+            res[i] = (pair, cb.loglik[q, 1:], cb.loglik[q, 0], None if cb.colour is None else cb.colour[q, 1:])
     return res
 
 
@@ -383,7 +382,7 @@ def judge_alarms(out: FilterOutput, stats: Statistics, k_alarm: np.ndarray, who:
     def decisions(bank, sel, k_end, ref_rows=None):
         cb = confirmation_bank(out, ref, bank, rows[sel], k0[sel], k_end, ka[sel], kept, ref_rows, design)
         return [decide(bank, q, int(kd[i]), margin, confirm, hid(rows[i]), cb[q], stp(rows[i]), int(ka[i]), int(k1[i]),
-                       design, persist, dt) for q, i in enumerate(sel)]
+                       design, persist) for q, i in enumerate(sel)]
 
     everyone = np.arange(len(rows))
     bank = run_bank_starts(out, ref, rows, k0, k_a1, ka, later_none=not kept, design=design)
