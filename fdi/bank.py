@@ -25,6 +25,10 @@ from .config import CalibrationStates, Constraints, FilterConfig, Guards, Sensor
 from .faults import BANK, FAULTS, MULTI, PARAMS, free_states
 from .filter import FilterOutput, run_filter, sample_step
 from .states import K_PER_LPM, N_AUG, N_MODEL, SCALE, STATE_NAMES
+from .whiteness import evidence_factor
+
+#: the innovation channels of FilterOutput.nu, in order
+CHANNELS = ("pA", "pB", "pos")
 
 #: the fault states, FAULTS order
 FAULT_IDX = tuple(PARAMS.values())
@@ -78,13 +82,27 @@ class BankDesign:
     #: withdrawn alarms after which a run's tests are no longer restarted, at the least (a longer
     #: record gets one per decision window: :func:`fdi.isolation.max_episodes`)
     max_episodes: int = 30
+    #: s: longest lag of the innovations' autocorrelation counted in the evidence's honest size
+    #: (:mod:`fdi.whiteness`; 0: every sample counts as independent): the decision window's
+    #: length, as a model-form error (a flow the model draws otherwise) biases the innovations
+    #: for as long as the operating point lasts, and a longer correlation cannot be told apart
+    colour_lag_s: float = 0.5
+    #: standard deviations of white noise's chance colour subtracted from the estimate: white
+    #: innovations keep their whole evidence in all but about 2 % of windows
+    colour_z: float = 2.0
+    #: the innovation channels (:data:`CHANNELS`) whose colour sizes the evidence. The position
+    #: channel is left out: an encoder's quantisation error stays constant while the piston
+    #: rests, which colours it on the model's own recordings too (the thresholds were set on them)
+    colour_channels: tuple = ("pA", "pB")
 
     def __post_init__(self):
         for name in ("held_p0_factor", "frozen_var", "start_step_s", "decision_window_s", "pair_window_s",
                      "min_single_fraction", "fit_nis"):
             if not _positive(getattr(self, name)):
                 raise ValueError(f"BankDesign.{name} = {getattr(self, name)!r}: must be a finite number > 0")
-        for name in ("onset_lead_s", "min_evidence_s"):
+        if not (_positive(self.colour_z) or self.colour_z == 0):
+            raise ValueError(f"BankDesign.colour_z = {self.colour_z!r}: must be a number of standard deviations >= 0")
+        for name in ("onset_lead_s", "min_evidence_s", "colour_lag_s"):
             v = getattr(self, name)
             if not (_positive(v) or v == 0):
                 raise ValueError(f"BankDesign.{name} = {v!r}: must be a duration >= 0 s")
@@ -96,6 +114,14 @@ class BankDesign:
             table = getattr(self, name)
             if set(table) != set(FAULTS) or not all(map(_positive, table.values())):
                 raise ValueError(f"BankDesign.{name} = {table!r}: must give a size > 0 (SI) for each of {FAULTS}")
+        if not self.colour_channels or not set(self.colour_channels) <= set(CHANNELS):
+            raise ValueError(f"BankDesign.colour_channels = {self.colour_channels!r}: must name some of {CHANNELS}")
+
+    def colour(self, nu: np.ndarray, dt: float) -> np.ndarray:
+        """(..., L) the evidence's variance inflation per sample of innovations ``nu`` (..., L, 3)
+        sampled every ``dt`` [s] (:func:`fdi.whiteness.evidence_factor`)."""
+        return evidence_factor(nu, int(round(self.colour_lag_s / dt)),
+                               tuple(CHANNELS.index(c) for c in self.colour_channels), self.colour_z)
 
     @property
     def min_single_size(self) -> dict:
@@ -216,6 +242,9 @@ class BankResult:
     #: (n, L, N_AUG + ...) scaled posterior mean and variances of the "none" filter (run_bank(keep_healthy=True))
     healthy_mean: np.ndarray | None = None
     healthy_var: np.ndarray | None = None
+    #: (n, H, L) the variance inflation of each hypothesis' innovations from its start to each
+    #: sample (:meth:`BankDesign.colour`): its evidence counts divided by it; None: 1
+    colour: np.ndarray | None = None
 
     def hyps(self, i: int) -> tuple:
         """The hypothesis names of run i (axis 1 of the arrays)."""
@@ -252,6 +281,8 @@ def run_bank(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: np.ndar
 
 #: BankResult fields with one entry per run and hypothesis, taken from its most likely start.
 _PER_HYPOTHESIS = ("healthy", "change", "change_sd", "start", "z_last", "var_last", "params", "nis")
+#: BankResult fields (n, H, L) along the window, taken from a hypothesis' most likely start on
+_ALONG = ("free", "free_sd", "colour")
 
 
 def candidate_starts(k0: int, k_alarm: int, k1: int, dt: float, design: BankDesign = None) -> np.ndarray:
@@ -301,8 +332,7 @@ def run_bank_starts(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: 
     later = [h for h in range(len(names)) if later_none or h != none]  # the hypotheses run from later starts
     second = run_hypotheses(out.inp, bank_config(ref.config, kept), rows[owner], taus, k1[owner], params, z0, var,
                              [tuple(names[h] for h in later)] * len(owner), False, design=design)
-    res = replace(first, loglik=first.loglik.copy(), free=first.free.copy(), free_sd=first.free_sd.copy(),
-                  **{f: getattr(first, f).copy() for f in _PER_HYPOTHESIS})
+    res = replace(first, loglik=first.loglik.copy(), **{f: getattr(first, f).copy() for f in _PER_HYPOTHESIS + _ALONG})
     for i in range(len(rows)):
         q = np.flatnonzero(owner == i)
         if not len(q):
@@ -325,10 +355,10 @@ def run_bank_starts(out: FilterOutput, ref: FilterOutput, rows: np.ndarray, k0: 
                 continue
             qs, g = q[s - 1], later.index(h)
             off = int(at[qs])
-            res.free[i, h, :off] = np.nan
-            res.free_sd[i, h, :off] = np.nan
-            res.free[i, h, off:Li] = second.free[qs, g, :Li - off]
-            res.free_sd[i, h, off:Li] = second.free_sd[qs, g, :Li - off]
+            for f in _ALONG:
+                along = getattr(res, f)
+                along[i, h, :off] = np.nan if f != "colour" else 1.0
+                along[i, h, off:Li] = getattr(second, f)[qs, g, :Li - off]
             for f in _PER_HYPOTHESIS:
                 getattr(res, f)[i, h] = getattr(second, f)[qs, g]
     return res
@@ -420,8 +450,9 @@ def run_hypotheses(inp, cfg: FilterConfig, rows, k0, k1, params, z0, var, names:
     if keep_healthy:
         h = names[0].index("none")
         kept_none = {"healthy_mean": mean[:, h] / sc, "healthy_var": (std[:, h] / sc) ** 2}
+    colour = design.colour(res.nu, inp.dt).reshape(n, H, L)
     return BankResult(k0=k0, loglik=loglik, free=free_est, free_sd=free_sd, healthy=healthy, n_valid=k1 - k0,
-                      names=names if per_run else names[0], change=change, change_sd=change_sd,
+                      names=names if per_run else names[0], change=change, change_sd=change_sd, colour=colour,
                       start=np.repeat(k0[:, None], H, axis=1), z_last=z_last, var_last=v_last,
                       params=np.repeat(params[:, None], H, axis=1), z0=z0, var0=var, nis=nis, **kept_none)
 

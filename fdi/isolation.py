@@ -209,7 +209,9 @@ def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float 
     ``hidden`` (F, T) bool, FAULTS order, recording samples: where each fault cannot show (on an
     end stop): its evidence counts only where it can, and a decision at a sample where the best
     fault cannot show is taken on the data up to the last sample where it could, off the stops
-    (``on_stop`` (T,)). ``conf``: ((best, runner-up), L (2, L), L_none (L,)) from
+    (``on_stop`` (T,)). Every lead is divided by the colour of the leading filter's innovations
+    (:attr:`BankResult.colour`, :mod:`fdi.whiteness`): what a coloured residual adds is not
+    evidence. ``conf``: ((best, runner-up), L (2, L), L_none (L,)[, their colour (2, L)]) from
     :func:`confirmation_bank`: the lead that confirms is then the best fault's over that bank's
     "none" (calibration as uncertain constants), and a fault is named only where that bank ranks
     the pair as the naming bank does (there, holding the calibration would decide the name).
@@ -222,14 +224,18 @@ def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float 
     start = min(max(0, k_from - int(bank.k0[i])), nv - 1)
     e = last_shown(ll, hidden, int(bank.k0[i]), on_stop)  # each sample's decision uses the data up to e
     shown, e = e >= 0, np.maximum(e, 0)
-    srt = np.sort(ll[:, e], axis=0)
+    # the evidence's honest size: divided by the best filter's innovation colour (fdi.whiteness)
+    colour = np.ones(ll.shape) if bank.colour is None else bank.colour[i][fi, :nv]
+    f_best = colour[np.argmax(ll[:, e], axis=0), e]
+    srt = np.sort(ll[:, e], axis=0) / f_best
     agree = np.ones(len(e), dtype=bool)
     if conf is None:
-        lead = evidence(ll, bank.loglik[i, names.index("none"), :nv], hidden, int(bank.k0[i]))[e]
+        lead = evidence(ll, bank.loglik[i, names.index("none"), :nv], hidden, int(bank.k0[i]))[e] / f_best
     else:
-        pair, ll_c, ll_n = conf
+        pair, ll_c, ll_n, c_colour = conf if len(conf) == 4 else (*conf, None)
         hid = None if hidden is None else hidden[[FAULTS.index(pair[0])]]
-        lead = evidence(ll_c[:1, :nv], ll_n[:nv], hid, int(bank.k0[i]))[e]
+        f_conf = 1.0 if c_colour is None else c_colour[0, :nv][e]
+        lead = evidence(ll_c[:1, :nv], ll_n[:nv], hid, int(bank.k0[i]))[e] / f_conf
         named_held = np.asarray(FAULTS)[np.argmax(ll[:, e], axis=0)]
         agree = named_held == np.asarray(pair)[np.argmax(ll_c[:, :nv][:, e], axis=0)]
     lead, rising = lead[start:], growing(lead, persist)[start:]
@@ -239,8 +245,8 @@ def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float 
     ok = np.flatnonzero((srt[-1, start:] - srt[-2, start:] >= margin) & ok_move & strong & agree[start:])
     at = start + int(ok[0]) if len(ok) else nv - 1
     best = int(np.argmax(ll[:, e[at]]))
-    llr = {h: float(ll[q, e[at]] - ll[best, e[at]]) for q, h in enumerate(FAULTS)}
-    llr_none = float(ll[best, e[at]] - bank.loglik[i, names.index("none"), e[at]])
+    llr = {h: float((ll[q, e[at]] - ll[best, e[at]]) / f_best[at]) for q, h in enumerate(FAULTS)}
+    llr_none = float((ll[best, e[at]] - bank.loglik[i, names.index("none"), e[at]]) / f_best[at])
     # size: the best filter's estimate of its constant parameter from all the window's data, minus healthy
     hb = fi[best]
     k0 = int(bank.k0[i])
@@ -313,7 +319,7 @@ def revision(bank: BankResult, i: int, margin: float, d: Decision, ll_single: np
 def confirmation_bank(out: FilterOutput, ref: FilterOutput, bank: BankResult, rows, k0, k1, k_alarm, kept: tuple,
                       ref_rows=None, design: BankDesign = DESIGN) -> list:
     """Per run i of ``rows`` (window [k0[i], k1[i]) of the naming ``bank``): ((best, runner-up),
-    L (2, L), L_none (L,)), the cumulative log-likelihoods of the bank's two best faults at its last
+    L (2, L), L_none (L,), colour (2, L)), the cumulative log-likelihoods of the bank's two best faults at its last
     sample and of "none", all with the reference's calibration states ``kept`` as uncertain
     constants (candidate onsets as the naming bank's); None per run when nothing is kept. Three
     hypotheses, not five: the replay's cost."""
@@ -332,7 +338,7 @@ def confirmation_bank(out: FilterOutput, ref: FilterOutput, bank: BankResult, ro
         cb = run_bank_starts(out, ref, rows[g], k0[g], k1[g], k_alarm[g], ("none",) + pair, ref_rows=rr, kept=kept,
                              design=design)
         for q, i in enumerate(g):
-            res[i] = (pair, cb.loglik[q, 1:], cb.loglik[q, 0])
+            res[i] = (pair, cb.loglik[q, 1:], cb.loglik[q, 0], None if cb.colour is None else cb.colour[q, 1:])
     return res
 
 

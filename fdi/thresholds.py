@@ -219,7 +219,9 @@ class Confirmation:
     #: the healthy hypothesis by this much with its parameter moved by the smallest size of
     #: interest; otherwise it is withdrawn and the tests restart (0: every alarm stands)
     #: nats; healthy episodes where the model's form errs (a valve parked at its null band's edge)
-    #: lead by tens of nats on rig recordings (docs/fdi.md, "On rig recordings")
+    #: lead by tens of nats on rig recordings (docs/fdi.md, "On rig recordings"). The lead is
+    #: counted at its honest size: divided by the colour of the leading filter's pressure
+    #: innovations (fdi.whiteness; BankDesign.colour_lag_s, colour_z, colour_channels)
     confirm_nats: float = 50.0
     #: s: the confirming lead must also have grown over the last this long (0: not asked). A
     #: fault that is there keeps adding evidence; a healthy transient that the model's form

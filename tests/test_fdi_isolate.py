@@ -394,11 +394,15 @@ def test_early_decision_revised_by_the_data_after_the_alarm():
     from fdi.bank import BankDesign
     from fdi.faults import HYPOTHESES
 
-    design = BankDesign(onset_lead_s=0.25, start_step_s=0.1)
+    # every sample counted as independent: with the lead at its honest size (fdi.whiteness) the
+    # bank's early decision is already offset-, and the revision has nothing to revise
+    design = BankDesign(onset_lead_s=0.25, start_step_s=0.1, colour_lag_s=0.0)
     root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
     rec = run_scenario(load_scenario(root / "offset_minus5pct_cycle.toml"))
     shipped = Thresholds.shipped().with_(long_stroke_s=None)
     no_trigger = shipped.with_(h={k: v for k, v in shipped.test.h.items() if k in HYPOTHESES})
+    honest = replay(rec, load_plant(), thresholds=no_trigger, design=replace(design, colour_lag_s=0.5)).diagnosis
+    assert honest.isolated == ["offset-"] and honest.size["offset-"]["value"] == pytest.approx(-5.0, abs=0.2)
     d = replay(rec, load_plant(), thresholds=no_trigger, design=design).diagnosis
     assert d.status == "fault" and d.isolated == ["offset-"]
     assert d.size["offset-"]["value"] == pytest.approx(-5.0, abs=0.2)
