@@ -128,13 +128,14 @@ def recording_sensors(sensors: Sensors, inp: FilterInput, checks: InputChecks = 
     """The sensor noise the filter assumes for this recording: ``sensors`` (the configured one),
     with the pressure noise (the larger of pA's and pB's :func:`white_noise_std`), a linear
     transducer's noise, and an encoder's pulse (:func:`encoder_pulse`; for an x computed from
-    it, one pulse in x / sqrt(12)) raised to the recording's own where that is above the
-    configured one by more than ``checks.own_noise_factor``. Never lowered: a filter that
-    trusted quieter sensors than the thresholds were derived with would alarm more often."""
+    it, that pulse and the angle's noise floor carried into x) raised to the recording's own
+    where that is above the configured one by more than ``checks.own_noise_factor``. Never
+    lowered: a filter that trusted quieter sensors than the thresholds were derived with would
+    alarm more often."""
     factor = checks.own_noise_factor
     if factor is None:
         return sensors
-    own_p = max(white_noise_std(inp.pA[0]), white_noise_std(inp.pB[0]))
+    own_p = np.fmax(white_noise_std(inp.pA[0]), white_noise_std(inp.pB[0]))
     if own_p > factor * sensors.pressure_noise:
         sensors = replace(sensors, pressure_noise=own_p)
     own_x = white_noise_std(inp.pos[0]) if inp.linear_position else float("nan")
@@ -145,16 +146,17 @@ def recording_sensors(sensors: Sensors, inp: FilterInput, checks: InputChecks = 
         return sensors
     # a coarser encoder: its rounding error, constant while the arm is slow or held, grows with
     # its pulse, and so does the floor that stands for it (Sensors.theta_noise_floor)
-    coarse = replace(sensors, theta_pulse=pulse, theta_noise_floor=sensors.theta_noise_floor * pulse / sensors.theta_pulse)
+    coarse = replace(sensors, theta_pulse=pulse,
+                     theta_noise_floor=sensors.theta_noise_floor * pulse / sensors.theta_pulse)
     if inp.pos_kind == POS_THETA:
         return coarse
     # x computed from it: the same, in x
     steps = np.abs(np.diff(inp.pos[0]))
     theta_steps = np.abs(np.diff(_angles(inp.pos[0], POS_X, inp.params[0])))
     one = (theta_steps > 0.5 * pulse) & (theta_steps < 1.5 * pulse)
-    dx_dtheta = float(np.median(steps[one] / theta_steps[one]))
+    dx_dtheta = float(np.median(steps[one] / theta_steps[one])) if one.any() else 0.0
     own_x = dx_dtheta * np.hypot(pulse / np.sqrt(12.0), coarse.theta_noise_floor)
-    return replace(coarse, x_noise=max(own_x, sensors.x_noise))
+    return replace(coarse, x_noise=float(np.fmax(own_x, sensors.x_noise)))
 
 
 def encoder_grid_coherence(x: np.ndarray, plant: Plant, checks: InputChecks = CHECKS) -> float:
@@ -225,7 +227,7 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
     return inp, InputReport(samples=rec.n, dt_s=rec.dt, position=column, supply_pressure_measured="pS" in sig,
                             out_of_range_samples=dropped,
                             ignored_optional_columns=sorted(set(rec.signals) & {"v", "xs"}), u_gaps_held=gaps,
-                            pressure_noise_Pa=max(white_noise_std(sig["pA"]), white_noise_std(sig["pB"])),
+                            pressure_noise_Pa=float(np.fmax(white_noise_std(sig["pA"]), white_noise_std(sig["pB"]))),
                             encoder_pulse_rad=encoder_pulse(_angles(inp.pos[0], inp.pos_kind, inp.params[0]), checks)
                             if sensor == "encoder" else float("nan"))
 
