@@ -79,9 +79,10 @@ def quot(a, b):
 @intrinsic
 def _quot_arcp(typingctx, a, b):
     """a / b of two float32 with LLVM's fast-math flags arcp (the reciprocal may be used) and ninf
-    (promising finite operands, which the reciprocal estimate needs). An infinite operand or a zero
-    divisor then gives NaN, where IEEE gives inf or 0: only a run that has already gone non-finite
-    meets one, and the GSA's NaN/inf check catches it either way."""
+    (promising finite operands, which the reciprocal estimate needs). An infinite dividend or a zero
+    divisor then gives NaN or inf, and an infinite divisor 0 or NaN (which one depends on whether the
+    vector body or the scalar remainder of a loop computed it): only a run that has already gone
+    non-finite meets one, and the GSA's NaN/inf check catches it either way."""
     if not a == b == types.float32:
         raise TypingError(f"_quot_arcp takes two float32, got {a}, {b}")
 

@@ -198,10 +198,14 @@ def test_quot_divides_float64_exactly_and_float32_within_two_ulp():
     want = a32.astype(np.float64) / b32.astype(np.float64)
     ulp = np.spacing(np.abs(want).astype(np.float32)).astype(np.float64)
     assert np.all(np.abs(got - want) <= 2.0 * ulp)
-    # an infinite operand or a zero divisor (a run already gone wrong) stays non-finite
-    a32 = np.array([1.0, 1.0, np.inf, 0.0, -1.0] * 8, np.float32)
-    b32 = np.array([0.0, np.inf, 2.0, 0.0, -0.0] * 8, np.float32)
+    # an infinite dividend or a zero divisor (a run already gone wrong) stays non-finite, in the
+    # vector body and in the scalar remainder alike (37 values: 2 x 16 lanes + 5)
+    a32 = np.array([1.0, np.inf, 0.0, -1.0] * 9 + [np.inf], np.float32)
+    b32 = np.array([0.0, 2.0, 0.0, -0.0] * 9 + [3.0], np.float32)
     assert not np.isfinite(_quots(a32, b32, np.empty_like(a32))).any()
+    # an infinite divisor gives 0 (IEEE) or NaN (the reciprocal's Newton step): never a wrong number
+    q = _quots(np.full(37, 1.0, np.float32), np.full(37, np.inf, np.float32), np.empty(37, np.float32))
+    assert np.all((q == 0.0) | np.isnan(q))
 
 
 def test_single_precision_follows_double_within_its_rounding():
