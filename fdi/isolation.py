@@ -211,7 +211,7 @@ def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float 
     fault cannot show is taken on the data up to the last sample where it could, off the stops
     (``on_stop`` (T,)). Every lead is divided by the colour of the leading filter's innovations
     (:attr:`BankResult.colour`, :mod:`fdi.whiteness`): what a coloured residual adds is not
-    evidence. ``conf``: ((best, runner-up), L (2, L), L_none (L,)[, their colour (2, L)]) from
+    evidence. ``conf``: ((best, runner-up), L (2, L), L_none (L,), their colour (2, L) or None) from
     :func:`confirmation_bank`: the lead that confirms is then the best fault's over that bank's
     "none" (calibration as uncertain constants), and a fault is named only where that bank ranks
     the pair as the naming bank does (there, holding the calibration would decide the name).
@@ -232,7 +232,7 @@ def decide(bank: BankResult, i: int, k_from: int, margin: float, confirm: float 
     if conf is None:
         lead = evidence(ll, bank.loglik[i, names.index("none"), :nv], hidden, int(bank.k0[i]))[e] / f_best
     else:
-        pair, ll_c, ll_n, c_colour = conf if len(conf) == 4 else (*conf, None)
+        pair, ll_c, ll_n, c_colour = conf
         hid = None if hidden is None else hidden[[FAULTS.index(pair[0])]]
         f_conf = 1.0 if c_colour is None else c_colour[0, :nv][e]
         lead = evidence(ll_c[:1, :nv], ll_n[:nv], hid, int(bank.k0[i]))[e] / f_conf

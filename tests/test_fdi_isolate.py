@@ -610,7 +610,7 @@ def test_a_fault_is_named_only_where_the_calibrated_bank_ranks_it_first():
         c = np.zeros((2, L))
         c[0] = 60.0  # offset, whose lead over "none" (0) confirms
         c[1] = np.where(np.arange(L) < kint_ahead, 70.0, 50.0)  # K_int
-        return ("offset", "K_int"), c, np.zeros(L)
+        return ("offset", "K_int"), c, np.zeros(L), None
 
     d = decide(bank, 0, 1000, MARGIN, confirm=20.0, conf=conf(0))
     assert (d.naming.hypothesis, d.naming.index, d.standing.confirmed) == ("offset", 1000, True)
