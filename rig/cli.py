@@ -40,8 +40,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "+-1 %%, each stepping in at a random onset")
     p.add_argument("--larger", action="store_true", help="also the next sizes up (0.5 L/min, +-2 %%), as many runs each")
     p.add_argument("--form", default="development", choices=sorted(FORMS),
-                   help="how runs are drawn (rig/population.py): development (default) or held-out, other input, "
-                        "loop and machine forms that a detector is never tuned on")
+                   help="how runs are drawn (rig/population.py): development (default); held-out, other input, "
+                        "loop and machine forms that a detector is never tuned on; other-sensors, the held-out "
+                        "form through 5-60 kPa transmitters, 12/16-bit ADCs and 0.007-0.036 deg encoders")
     p.add_argument("--seed", type=int, default=1, help="the population's seed (each run's draws from (seed, run))")
     p.add_argument("--plant", help="plant TOML the runs are drawn around (default: the shipped SAM)")
     p.add_argument("--format", default="mat", choices=FORMATS, help="file format (default mat: compressed)")

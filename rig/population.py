@@ -8,7 +8,8 @@ sines as setpoints) or an open-loop input (cycles, sines, PRBS); a load of 0-800
 changing; a machine off its plant file (valve flows and pressure drops, B_eff, viscous and
 Coulomb friction, geometry tolerances, transmitter offsets, and in the held-out form a
 transmitter lag and hoses); a fault stepping in at a random onset. :data:`DEVELOPMENT` and
-:data:`HELD_OUT` are two forms apart: tune on the first, measure on the second.
+:data:`HELD_OUT` are two forms apart: tune on the first, measure on the second;
+:data:`OTHER_SENSORS` is the held-out form through another lab's transmitters and encoder.
 """
 
 from __future__ import annotations
@@ -68,6 +69,12 @@ class Form:
     transmitter_lag_s: tuple = (0.0, 0.0)  #: s; a lag below ~0.3 ms is stiff for the rig's RK4 at 0.1 ms
     hose_volume_m3: tuple = (0.0, 0.0)  #: per chamber, hoses of modulus hose_modulus_Pa
     hose_modulus_Pa: float = 1e10
+    #: the lab's sensors, drawn from a generator of their own so that forms which leave them at the
+    #: SAM's (15 kPa transmitters, 16-bit ADC, 0.007 deg encoder) keep their runs draw for draw
+    pressure_noise_Pa: tuple = (15e3, 15e3)  #: each transmitter's white noise
+    adc_bits: tuple = (16,)  #: the logger's ADC resolutions, one drawn
+    encoder_deg: tuple = (0.007,)  #: encoders' pulses, one drawn (deg per count)
+    delay_s: tuple = (0.0, 0.0)  #: transport delay of the pressure signals
 
     def __post_init__(self):
         for name in ("closed_loop_share", "pi_share", "dither_share", "load_change_share"):
@@ -86,7 +93,13 @@ HELD_OUT = Form(
              "dp_N_PB": 0.04, "dp_N_BT": 0.04, "B_eff": 0.20, "b": 0.40, "F_C": 0.30},
     length_sd_m=0.0015, angle_sd_rad=0.015, sensor_offset_Pa=20e3, transmitter_lag_s=(0.5e-3, 2e-3),
     hose_volume_m3=(0.0, 5e-5))
-FORMS = {f.name: f for f in (DEVELOPMENT, HELD_OUT)}
+#: The held-out form seen through other sensors than the SAM's, as a lab's rig would be: 5-60 kPa
+#: transmitters (0.02-0.25 % of 25 MPa) through a 12- or 16-bit ADC, encoders of 0.007-0.036 deg
+#: per count, a transport delay of up to 2 ms. Never tuned on.
+OTHER_SENSORS = dataclasses.replace(
+    HELD_OUT, name="other-sensors", pressure_noise_Pa=(5e3, 60e3), adc_bits=(12, 16),
+    encoder_deg=(0.007, 0.009, 0.018, 0.036), delay_s=(0.0, 2e-3))
+FORMS = {f.name: f for f in (DEVELOPMENT, HELD_OUT, OTHER_SENSORS)}
 
 
 def cases(n_healthy: int, n_per_case: int, fault_cases=TARGET_CASES) -> list:
@@ -130,10 +143,15 @@ def draw_run(plant_path: Path, form: Form, seed: int, i: int, fault=None, size: 
         table["faults"] = {fault: {"kind": "step", "value": float(size), "unit": unit, "t0_s": onset}}
     lo, hi = form.transmitter_lag_s
     hose = rng.uniform(*form.hose_volume_m3, 2)
+    sensor_rng = np.random.default_rng((seed, i, 1))
     settings = RigSettings(
         sensors=Sensors(offset_A_Pa=float(rng.uniform(-1, 1) * form.sensor_offset_Pa),
                         offset_B_Pa=float(rng.uniform(-1, 1) * form.sensor_offset_Pa),
-                        lag_s=float(rng.uniform(lo, hi))),
+                        lag_s=float(rng.uniform(lo, hi)),
+                        pressure_noise_Pa=float(sensor_rng.uniform(*form.pressure_noise_Pa)),
+                        adc_bits=int(sensor_rng.choice(form.adc_bits)),
+                        encoder_deg=float(sensor_rng.choice(form.encoder_deg)),
+                        delay_s=float(sensor_rng.uniform(*form.delay_s))),
         effects=Effects(hose_volume_A_m3=float(hose[0]), hose_volume_B_m3=float(hose[1]),
                         hose_modulus_Pa=form.hose_modulus_Pa),
         tolerances=Tolerances(length_sd_m=form.length_sd_m, angle_sd_rad=form.angle_sd_rad))
