@@ -221,7 +221,7 @@ def test_sam_model_outputs_are_the_recorded_states_then_their_steady_means(preci
     for i, s in enumerate(model.signals):
         block = Y[:, i * (n_rec + 1) : (i + 1) * (n_rec + 1)]
         np.testing.assert_array_equal(block[:, :n_rec], res[s])
-        want = res[s][:, steady].mean(axis=1)
+        want = res[s][:, steady].astype(np.float64).mean(axis=1)  # the model sums in float64
         if precision == "float64":
             np.testing.assert_allclose(block[:, n_rec], want, rtol=1e-15)
         else:
