@@ -20,6 +20,7 @@ from .data import check_same_plant, check_segment, missing_note, prepare, sampli
 from .design import Design, settle
 from .fitting import (FitResult, Model, Split, correlation_time, evaluate, fit_by_segment, segment_delta_bic, segment_rss,
                       segment_scales, unweighted)
+from .ceiling import closest_library_effect, excess, noise_ceiling, short_of_ceiling
 from .commissioning import calibrate, calibration_params, commissioning_start
 from .floor import Floor, Specificity, specific, start_sensitive, step_floor
 from .library import Free, Hypothesis, format_value, library
@@ -54,6 +55,7 @@ class Candidate:
     fit_before: dict = field(default_factory=dict)
     fit_after: dict = field(default_factory=dict)
     specificity: Specificity | None = None  # its held-out gain segment by segment, against the step floor
+    physical: bool = True  # moves a nominal value by > 5 % and a lag or delay by >= one sample
 
     @property
     def name(self) -> str:
@@ -96,6 +98,7 @@ class Report:
     design: Design | None = None  # the input that would tell the first named effect from its look-alike
     limits: list[str] = field(default_factory=list)  # what the sensor set and sampling rate cannot tell apart
     plant_path: str | None = None  # the plant file, for the designed scenario
+    shortfall: dict = field(default_factory=dict)  # the held-out noise ceiling and the calibrated model's excess
     traces: dict = field(default_factory=dict)  # for figures
 
     @property
@@ -289,6 +292,21 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
             gen["significant"] = False
             chosen, final = [c], c.result
 
+    # ---- short of the noise ceiling: nothing named, yet the calibrated model errs far more than a clean
+    # recording's does over its noise (discrepancy.ceiling): not adequate; the library's closest, else unknown
+    ceiling = noise_ceiling(split.sim_for("held"))
+    cal_held = _held_fits(split.settled(settings.start_decay_times), cal)["mean"]
+    limit = settings.excess_limit
+    shortfall = {"ceiling_held": ceiling, "calibrated_held": cal_held, "excess": excess(cal_held, ceiling["mean"]),
+                 "limit": limit, "short": False}
+    if not chosen and not (gen and gen.get("significant")) and short_of_ceiling(cal_held, ceiling["mean"], limit):
+        shortfall["short"] = True
+        if (c := closest_library_effect(cands, ceiling["mean"], limit, BIC_STRONG, MIN_GAIN, MIN_FIT_POINTS)):
+            warnings.append(f"{c.name} is named because the calibrated model errs {shortfall['excess']:.1f} times the "
+                            f"recording's noise (clean recordings: at most {limit:g}) and it alone brings the held-out "
+                            f"fit to {c.fit_after['mean']:.1f} %, though it did not pass every acceptance test")
+            chosen, final = [c], c.result
+
     # ---- verdict
     fit_table = _fit_table(split.settled(settings.start_decay_times),
                            {"nominal": (base, np.zeros(2)), "calibrated": (cal.params, cal.meas),
@@ -297,7 +315,7 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     for c in chosen:
         for name in c.result.at_bounds:
             warnings.append(f"fitted {name} of '{c.name}' sits at its bound: the true value may lie beyond it")
-    verdict, headline = _verdict(chosen, calibration, gen, fit_table, located, plant)
+    verdict, headline = _verdict(chosen, calibration, gen, fit_table, located, shortfall)
     sureness, design = settle(split, data, cands, chosen, plant, settings.scheme, BIC_STRONG)
     timings["settle_s"] = time.perf_counter() - t_start
     report = Report(
@@ -306,6 +324,7 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
         ranked=cands, chosen=chosen, generic=gen, warnings=warnings, timings=timings, n_eff=n_eff,
         segment_s=fsim.seg.length * data.dt, floor=floor, sureness=sureness, design=design,
         limits=sensor_limits(data), plant_path=str(plant_path) if plant_path is not None else None,
+        shortfall=shortfall,
     )
     report.traces = {"split": split, "nominal": base, "calibrated": cal, "final": final, "residual": res,
                      "masks": masks, "energy": energy}
@@ -427,7 +446,8 @@ def _judge(split: Split, hyps: list[Hypothesis], res: FitResult, reference: FitR
     # and beat the model's own error specifically: on every held-out segment where it changes the
     # prediction, and by more than the step floor over the held-out part (discrepancy.floor)
     c.specificity = specific(split, res, reference, gate.floor, gate.n_seg_eff, gate.settings)
-    c.accepted = evidence and c.specificity.passed and _away_from_nominal(hyps, res) and _resolvable(hyps, res, split)
+    c.physical = _away_from_nominal(hyps, res) and _resolvable(hyps, res, split)
+    c.accepted = evidence and c.specificity.passed and c.physical
     return c
 
 
@@ -520,7 +540,7 @@ def _fit_table(split: Split, models: dict, gen: dict | None) -> dict:
     return table
 
 
-def _verdict(chosen, calibration, gen, table, located, plant) -> tuple[str, str]:
+def _verdict(chosen, calibration, gen, table, located, shortfall) -> tuple[str, str]:
     changed = [c for c in calibration if _significant_change(c)]
     recal = ("after recalibrating " + ", ".join(c["text"] for c in changed)) if changed else "with the nominal parameters"
     cal_h = table["calibrated"]["held"]["mean"]
@@ -536,6 +556,12 @@ def _verdict(chosen, calibration, gen, table, located, plant) -> tuple[str, str]
         return "unknown_effect", (
             f"{where}. No effect of the library explains it; the generic route finds {gen['equation']} "
             f"({gen['mapped']}), raising the held-out fit from {cal_h:.1f} % to {gen['fit_table']['held']['mean']:.1f} %.")
+    if shortfall.get("short"):
+        best = f"; the generic route's best term, {gen['equation']}, is not significant" if gen and gen.get("terms") else ""
+        return "unknown_effect", (
+            f"{where}. No effect of the library explains it: the calibrated model's held-out fit {cal_h:.1f} % errs "
+            f"{shortfall['excess']:.1f} times the recording's noise (ceiling {shortfall['ceiling_held']['mean']:.1f} %; "
+            f"clean recordings at most {shortfall['limit']:g} times){best}.")
     if cal_h >= 80.0:
         if changed:
             return "recalibrated", (f"The model is adequate {recal}: the mismatch was a mis-set nominal value, "
