@@ -12,6 +12,7 @@ import rig
 import sam
 from discrepancy.ceiling import closest_library_effect, excess, noise_ceiling, noise_sd, short_of_ceiling
 from discrepancy.data import prepare
+from discrepancy.settings import Settings
 from discrepancy.simulation import SegmentSimulator
 from sam.plant import default_plant_path
 
@@ -67,3 +68,9 @@ def test_the_closest_library_effect_must_bring_the_model_back_to_its_noise():
     assert closest_library_effect([far], **kw) is None
     assert closest_library_effect([_cand("lag", 90.0, 96.0, -200.0, physical=False)], **kw) is None
     assert closest_library_effect([_cand("weak", 90.0, 96.0, -200.0, sbh=-5.0)], **kw) is None
+
+
+@pytest.mark.parametrize("knob, value", [("specific_share", 0.0), ("specific_share", 1.5), ("excess_limit", -1.0)])
+def test_the_gates_knobs_are_validated(knob, value):
+    with pytest.raises(ValueError, match=knob):
+        Settings(**{knob: value})

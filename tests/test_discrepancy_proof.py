@@ -25,9 +25,11 @@ from mismatch_sets import dev_set, record  # noqa: E402
 pytestmark = pytest.mark.slow
 
 #: A clean machine (597 kg where the plant file says 494, B_eff 0.91 GPa, flows and geometry off
-#: within tolerance) and one concealed effect (a laminar bypass of 1e-12 m^3/(s Pa), 0.06 L/min per MPa),
-#: closed loop, 20 s.
-REDUCED = ("clean_closed_1067", "bypass_leakage_closed_1031")
+#: within tolerance), one concealed effect (a laminar bypass of 1e-12 m^3/(s Pa), 0.06 L/min per MPa),
+#: closed loop, 20 s, and a 2 % spool overlap under an operator's input, whose library fit lowers the
+#: held-out error on 4 of the 5 segments it changes (not all: accepted because it brings the model back
+#: to its noise ceiling, discrepancy.ceiling).
+REDUCED = ("clean_closed_1067", "bypass_leakage_closed_1031", "spool_lap_open_1014")
 
 
 @pytest.mark.parametrize("name", REDUCED)
