@@ -442,10 +442,10 @@ def _judge(split: Split, hyps: list[Hypothesis], res: FitResult, reference: FitR
         evidence = (evidence and dbic < -BIC_STRONG and gain_fit > MIN_GAIN and gain_held > MIN_GAIN
                     and c.fit_after["mean"] - c.fit_before["mean"] >= MIN_FIT_POINTS)
     # and beat the model's own error specifically: on every held-out segment where it changes the
-    # prediction, and by more than the step floor over the held-out part (discrepancy.floor)
+    # prediction (or on most, if it brings the model back to its noise ceiling: discrepancy.ceiling),
+    # and by more than the step floor over the held-out part (discrepancy.floor)
     c.specificity = specific(split, res, reference, gate.floor, gate.n_seg_eff, gate.settings)
     c.physical = _away_from_nominal(hyps, res) and _resolvable(hyps, res, split)
-    # not on every active segment but on most: enough when the effect brings the model back to its noise
     sp, st = c.specificity, gate.settings
     closes = not short_of_ceiling(c.fit_after["mean"], gate.ceiling, st.excess_limit)
     c.accepted = evidence and c.physical and (sp.passed or (sp.mostly and closes))

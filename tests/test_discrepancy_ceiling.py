@@ -74,3 +74,20 @@ def test_the_closest_library_effect_must_bring_the_model_back_to_its_noise():
 def test_the_gates_knobs_are_validated(knob, value):
     with pytest.raises(ValueError, match=knob):
         Settings(**{knob: value})
+
+
+def test_a_calibrated_model_short_of_its_ceiling_is_not_a_known_effect():
+    """Nothing named, no significant generic term: at 89 % held out with a 99.45 % ceiling (excess 20)
+    the verdict is 'unknown_effect', at 98.6 % (excess 2.5) 'recalibrated'."""
+    from discrepancy.verdict import verdict_of
+
+    located = {"signal_share": {"pA": 0.5, "pB": 0.3, "x": 0.2}, "regimes": []}
+    calibration = [{"change": 0.2, "relative": True, "text": "load mass: 494 -> 593 kg"}]
+    ceiling = {"mean": 99.45}
+    for fit, short, want in ((89.0, True, "unknown_effect"), (98.6, False, "recalibrated")):
+        table = {"calibrated": {"held": {"mean": fit}}}
+        shortfall = {"short": short, "excess": excess(fit, ceiling["mean"]), "ceiling_held": ceiling, "limit": 11.0}
+        verdict, headline = verdict_of([], calibration, {"terms": [], "significant": False}, table, located, shortfall)
+        assert verdict == want
+        if short:
+            assert "errs 20.0 times the recording's noise" in headline
