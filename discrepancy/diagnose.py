@@ -187,8 +187,13 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     n_blocks = 3 * int(np.sum(fsim.segment_mask("fit")))
     tau = correlation_time(r_cal_fit, n_blocks)
     n_eff = max(cal.n_fit / tau, 10.0)
+    # the recording's noise ceiling and the calibrated model's excess over it (discrepancy.ceiling)
     ceiling = noise_ceiling(split.sim_for("held"))
-    gate = _Gate(floor, settings, n_eff / split.n_segments("fit"), ceiling["mean"])
+    cal_held = _held_fits(split.settled(settings.start_decay_times), cal)["mean"]
+    limit = settings.excess_limit
+    shortfall = {"ceiling_held": ceiling, "calibrated_held": cal_held, "excess": excess(cal_held, ceiling["mean"]),
+                 "limit": limit, "calibrated_short": short_of_ceiling(cal_held, ceiling["mean"], limit)}
+    gate = _Gate(floor, settings, n_eff / split.n_segments("fit"), ceiling["mean"], shortfall["calibrated_short"])
     timings["locate_s"] = time.perf_counter() - t_start
 
     # ---- name: signatures, then fit every hypothesis jointly with the calibration parameters
@@ -292,12 +297,8 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
 
     # ---- short of the noise ceiling: nothing named, yet the calibrated model errs far more than a clean
     # recording's does over its noise (discrepancy.ceiling): not adequate; the library's closest, else unknown
-    cal_held = _held_fits(split.settled(settings.start_decay_times), cal)["mean"]
-    limit = settings.excess_limit
-    shortfall = {"ceiling_held": ceiling, "calibrated_held": cal_held, "excess": excess(cal_held, ceiling["mean"]),
-                 "limit": limit, "short": False}
-    if not chosen and not (gen and gen.get("significant")) and short_of_ceiling(cal_held, ceiling["mean"], limit):
-        shortfall["short"] = True
+    shortfall["short"] = shortfall["calibrated_short"] and not chosen and not (gen and gen.get("significant"))
+    if shortfall["short"]:
         if (c := closest_library_effect(cands, ceiling["mean"], limit, BIC_STRONG, MIN_GAIN, MIN_FIT_POINTS)):
             warnings.append(f"{c.name} is named because the calibrated model errs {shortfall['excess']:.1f} times the "
                             f"recording's noise (clean recordings: at most {limit:g}) and it alone brings the held-out "
@@ -374,6 +375,7 @@ class _Gate:
     settings: Settings
     n_seg_eff: float
     ceiling: float = 100.0  #: % the held-out noise ceiling's mean (discrepancy.ceiling.noise_ceiling)
+    short: bool = False  #: the calibrated model errs more than Settings.excess_limit times the ceiling's shortfall
 
 
 def _fit_hypothesis(split: Split, cal: FitResult, calib, hyps: list[Hypothesis], n_eff: float, signature: float,
@@ -442,13 +444,15 @@ def _judge(split: Split, hyps: list[Hypothesis], res: FitResult, reference: FitR
         evidence = (evidence and dbic < -BIC_STRONG and gain_fit > MIN_GAIN and gain_held > MIN_GAIN
                     and c.fit_after["mean"] - c.fit_before["mean"] >= MIN_FIT_POINTS)
     # and beat the model's own error specifically: on every held-out segment where it changes the
-    # prediction (or on most, if it brings the model back to its noise ceiling: discrepancy.ceiling),
-    # and by more than the step floor over the held-out part (discrepancy.floor)
+    # prediction (or, when the calibrated model is far short of its noise ceiling, on most, if it brings
+    # the model back within the limit: discrepancy.ceiling), and by more than the step floor over the
+    # held-out part (discrepancy.floor). Within the limit the rule is unchanged: a clean recording's
+    # calibrated model is there, and an effect that helps on most segments may be fitting its error
     c.specificity = specific(split, res, reference, gate.floor, gate.n_seg_eff, gate.settings)
     c.physical = _away_from_nominal(hyps, res) and _resolvable(hyps, res, split)
     sp, st = c.specificity, gate.settings
     closes = not short_of_ceiling(c.fit_after["mean"], gate.ceiling, st.excess_limit)
-    c.accepted = evidence and c.physical and (sp.passed or (sp.mostly and closes))
+    c.accepted = evidence and c.physical and (sp.passed or (gate.short and sp.mostly and closes))
     return c
 
 

@@ -22,8 +22,9 @@ samples a BIC calls that significant. Two measures keep an effect from claiming 
   times the floor (:func:`specific`). A term that moves the prediction where it does not help is
   fitting the model's error, not physics. An effect whose library form only approximates the
   machine's may fail one active segment: ``Specificity.mostly`` (it helps on at least
-  ``Settings.specific_share`` of them) is then enough if it also brings the model back to the fit
-  clean recordings reach over their noise (``discrepancy.ceiling``; the diagnosis decides that).
+  ``Settings.specific_share`` of them) is then enough when the calibrated model is far short of the
+  fit clean recordings reach over their noise and the effect brings it back within that limit
+  (``discrepancy.ceiling``; the diagnosis decides that).
 """
 
 from __future__ import annotations
