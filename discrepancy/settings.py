@@ -57,14 +57,13 @@ class Settings:
     #: down to 5 %
     start_decay_times: float = 3.0
     #: a calibrated model whose held-out shortfall from 100 % fit is more than this many times the noise
-    #: ceiling's (discrepancy.ceiling.excess) is not adequate even when no effect passed every test. The
-    #: 22 clean development rig recordings show 1.1-3.5, one 7.3: 1.5 times the worst (docs/mismatch.md)
+    #: ceiling's (discrepancy.ceiling.excess) is not adequate even when no effect passed every test:
+    #: 1.5 times the worst clean development recording's excess (docs/mismatch.md, Acceptance, rule 6)
     excess_limit: float = 11.0
     #: when the calibrated model is beyond ``excess_limit``, an effect that lowers the held-out error on
     #: at least this share of the segments where it changes the prediction (not all:
     #: floor.Specificity.mostly) is accepted if it brings the model back within the limit; the
-    #: every-segment rule alone rejected true effects whose library form only approximates the rig's
-    #: (one segment of 3-6 worse by 1-40 %, dev set)
+    #: every-segment rule alone rejects true effects whose library form only approximates the machine's
     specific_share: float = 2.0 / 3.0
 
     def __post_init__(self):
