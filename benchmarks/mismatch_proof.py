@@ -12,6 +12,7 @@ done: a killed run resumes where it stopped (cases already in --out are skipped)
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -21,7 +22,7 @@ from pathlib import Path
 from scipy.stats import beta
 
 import sam
-from discrepancy import diagnose
+from discrepancy import Settings, diagnose
 from mismatch_sets import SETS, Case, record
 
 #: The targets of the issue, by kind of case: (share, what it counts).
@@ -55,6 +56,16 @@ def score(case: Case, report) -> dict:
         "generic": (report.generic or {}).get("equation", "") if report.verdict == "unknown_effect" else "",
         "held_nominal": ft["nominal"]["held"]["mean"], "held_calibrated": ft["calibrated"]["held"]["mean"],
         "held_final": ft[final]["held"]["mean"], "time_s": report.timings["total_s"],
+        "ceiling_held": report.shortfall.get("ceiling_held", {}).get("mean"), "excess": report.shortfall.get("excess"),
+        # every first-round candidate's evidence, to study the acceptance rule without re-running
+        "first_round": [{"name": c.name, "accepted": c.accepted, "physical": c.physical, "dbic": c.delta_bic,
+                         "seg_bic_fit": c.seg_bic_fit, "seg_bic_held": c.seg_bic_held, "dbic_held": c.delta_bic_held,
+                         "gain_fit": c.gain_fit, "gain_held": c.gain_held, "fit_before": c.fit_before.get("mean"),
+                         "fit_after": c.fit_after.get("mean"),
+                         "specific": bool(c.specificity.passed) if c.specificity else None,
+                         "segments": c.specificity.as_dict() if c.specificity else None,
+                         "floor_pooled": report.floor.pooled if report.floor else None,
+                         "values": c.effect_values()} for c in report.ranked],
     }
 
 
@@ -88,7 +99,7 @@ def interleaved(cases: list[Case]) -> list[Case]:
     return out
 
 
-def run(cases: list[Case], out: Path, plant: sam.Plant) -> None:
+def run(cases: list[Case], out: Path, plant: sam.Plant, settings: Settings = Settings()) -> None:
     done = set()
     if out.exists():
         done = {json.loads(line)["case"] for line in out.read_text().splitlines() if line.strip()}
@@ -99,7 +110,7 @@ def run(cases: list[Case], out: Path, plant: sam.Plant) -> None:
         rec = record(case).measured()
         t0 = time.perf_counter()
         try:
-            rep = diagnose(rec, plant, None, figures=False)
+            rep = diagnose(rec, plant, None, figures=False, settings=settings)
         except Exception as e:  # a crash is a result too: scored wrong, the run goes on
             row = {"case": case.name, "group": case.group or case.kind, "kind": case.kind, "ok": False,
                    "error": f"{type(e).__name__}: {e}", "time_s": time.perf_counter() - t0}
@@ -171,6 +182,8 @@ def main(argv=None) -> int:
     ap.add_argument("--case", action="append", help="only these cases (repeatable)")
     ap.add_argument("--group", action="append", help="only the cases of these groups (repeatable)")
     ap.add_argument("--table", type=Path, help="print the tables of a finished run and stop")
+    ap.add_argument("--setting", action="append", default=[], metavar="NAME=VALUE",
+                    help="a discrepancy.Settings knob other than its default (repeatable), e.g. excess_limit=inf")
     ap.add_argument("--quiet", action="store_true", help="the run had the machine to itself: judge the time target")
     args = ap.parse_args(argv)
     if args.table:
@@ -180,7 +193,9 @@ def main(argv=None) -> int:
         ap.error("--out is needed to run a set")
     cases = [c for c in SETS[args.set]() if (not args.case or c.name in args.case)
              and (not args.group or c.group in args.group)]
-    run(interleaved(cases), args.out, sam.load_plant())
+    knobs = dict(kv.split("=", 1) for kv in args.setting)
+    settings = dataclasses.replace(Settings(), **{k: type(getattr(Settings(), k))(v) for k, v in knobs.items()})
+    run(interleaved(cases), args.out, sam.load_plant(), settings)
     return 0
 
 

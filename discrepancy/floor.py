@@ -20,7 +20,11 @@ samples a BIC calls that significant. Two measures keep an effect from claiming 
   its change of the prediction is larger than the floor and than what noise could produce, it must
   lower the error; and over the held-out part it must remove more than ``Settings.floor_margin``
   times the floor (:func:`specific`). A term that moves the prediction where it does not help is
-  fitting the model's error, not physics.
+  fitting the model's error, not physics. An effect whose library form only approximates the
+  machine's may fail one active segment: ``Specificity.mostly`` (it helps on at least
+  ``Settings.specific_share`` of them) is then enough when the calibrated model is far short of the
+  fit clean recordings reach over their noise and the effect brings it back within that limit
+  (``discrepancy.ceiling``; the diagnosis decides that).
 """
 
 from __future__ import annotations
@@ -116,11 +120,13 @@ class Specificity:
     change: np.ndarray  #: (n_held_segments,) squared change of the prediction / RSS(reference)
     active: np.ndarray  #: (n_held_segments,) bool, segments where the change is above floor and noise
     pooled_gain: float
-    passed: bool
+    passed: bool  #: it lowers the error on every active segment, and the pooled error beyond the floor
+    mostly: bool = False  #: on at least ``Settings.specific_share`` of the active segments, and the pooled one
 
     def as_dict(self) -> dict:
         return {"segment_gain": self.gain.tolist(), "segment_change": self.change.tolist(),
-                "active": self.active.tolist(), "pooled_gain": self.pooled_gain, "passed": self.passed}
+                "active": self.active.tolist(), "pooled_gain": self.pooled_gain, "passed": self.passed,
+                "mostly": self.mostly}
 
 
 def specific(split: Split, res: FitResult, reference: FitResult, floor: Floor, n_seg_eff: float,
@@ -140,8 +146,9 @@ def specific(split: Split, res: FitResult, reference: FitResult, floor: Floor, n
     floor_s = floor.held if len(floor.held) == n_seg else np.full(n_seg, floor.pooled)
     active = change > np.maximum(floor_s, settings.noise_factor / max(n_seg_eff, 1.0))
     pooled = 1.0 - float(np.sum(r_new ** 2) / max(np.sum(r_ref ** 2), 1e-300))
-    passed = bool(active.any() and np.all(gain[active] > 0.0) and pooled > settings.floor_margin * floor.pooled)
-    return Specificity(gain, change, active, pooled, passed)
+    beyond = bool(active.any() and pooled > settings.floor_margin * floor.pooled)
+    helped = float(np.mean(gain[active] > 0.0)) if active.any() else 0.0
+    return Specificity(gain, change, active, pooled, beyond and helped == 1.0, beyond and helped >= settings.specific_share)
 
 
 __all__ = ["Floor", "Specificity", "specific", "start_sensitive", "step_floor"]

@@ -58,6 +58,7 @@ def to_json(report) -> dict:
         "warnings": report.warnings,
         "effective_samples_for_bic": report.n_eff,
         "step_floor": report.floor.as_dict() if report.floor else None,
+        "noise_ceiling": report.shortfall,
         "how_sure": report.sureness,
         "what_would_settle_it": report.design.as_dict() if report.design else None,
         "limits_of_the_recording": report.limits,

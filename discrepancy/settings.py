@@ -56,12 +56,23 @@ class Settings:
     #: segment starts from the smoothed measurement. After 3 decay times a start error's ringing is
     #: down to 5 %
     start_decay_times: float = 3.0
+    #: a calibrated model whose held-out shortfall from 100 % fit is more than this many times the noise
+    #: ceiling's (discrepancy.ceiling.excess) is not adequate even when no effect passed every test:
+    #: 1.5 times the worst clean development recording's excess (docs/mismatch.md, Acceptance, rule 6)
+    excess_limit: float = 11.0
+    #: when the calibrated model is beyond ``excess_limit``, an effect that lowers the held-out error on
+    #: at least this share of the segments where it changes the prediction (not all:
+    #: floor.Specificity.mostly) is accepted if it brings the model back within the limit; the
+    #: every-segment rule alone rejects true effects whose library form only approximates the machine's
+    specific_share: float = 2.0 / 3.0
 
     def __post_init__(self):
         for name in ("max_step_s", "floor_margin", "noise_factor", "start_shift_s", "start_sensitive_share",
-                     "stop_band_m", "low_pressure_Pa", "gap_hold_s", "commissioning_min_speed"):
+                     "stop_band_m", "low_pressure_Pa", "gap_hold_s", "commissioning_min_speed", "excess_limit"):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"Settings.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0.0 < self.specific_share <= 1.0:
+            raise ValueError(f"Settings.specific_share must be within (0, 1], got {self.specific_share!r}")
         if not 0.0 <= self.start_decay_times <= 20.0:
             raise ValueError(f"Settings.start_decay_times must be within 0-20 decay times of the hydraulic mode, "
                              f"got {self.start_decay_times!r}")

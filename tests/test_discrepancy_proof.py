@@ -25,9 +25,12 @@ from mismatch_sets import dev_set, record  # noqa: E402
 pytestmark = pytest.mark.slow
 
 #: A clean machine (597 kg where the plant file says 494, B_eff 0.91 GPa, flows and geometry off
-#: within tolerance) and one concealed effect (a laminar bypass of 1e-12 m^3/(s Pa), 0.06 L/min per MPa),
-#: closed loop, 20 s.
-REDUCED = ("clean_closed_1067", "bypass_leakage_closed_1031")
+#: within tolerance), one concealed effect (a laminar bypass of 1e-12 m^3/(s Pa), 0.06 L/min per MPa),
+#: closed loop, 20 s, and seal friction rising with pressure (4e-4 m^2 piston, 2e-4 m^2 rod), whose
+#: calibrated model errs 22 times the noise ceiling's shortfall and whose library fit lowers the
+#: held-out error on most (not all) of the segments it changes, bringing the model back within the
+#: limit (discrepancy.ceiling).
+REDUCED = ("clean_closed_1067", "bypass_leakage_closed_1031", "pressure_friction_closed_1041")
 
 
 @pytest.mark.parametrize("name", REDUCED)
