@@ -23,7 +23,7 @@ Each pressure term adds the variance of the pressure its flow error builds in on
 
     q_extra^2 = (share s_c B_eff / V_c dt)^2       [Pa^2 per sample],
 
-V_c the chamber's volume at the measured position (Eq. (6)); the kernel's process-noise gates
+V_c the chamber's volume at the measured position (Eqs. (8)-(9)); the kernel's process-noise gates
 carry it as a factor 1 + q_extra^2 / (q^2 dt) on the state's own variance (:func:`form_gates`).
 This makes the model honest where it is known to be uncertain; it assumes no fade shape and no
 air law.
@@ -77,7 +77,7 @@ def null_flow_spread(pA: np.ndarray, pB: np.ndarray, params: np.ndarray) -> tupl
 
 
 def chamber_capacitances(x: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(B_eff / V_A, B_eff / V_B) (B, T) [Pa/m^3] at piston positions x (B, T) [m] (Eq. (6)'s
+    """(B_eff / V_A, B_eff / V_B) (B, T) [Pa/m^3] at piston positions x (B, T) [m] (Eqs. (8)-(9)'s
     volumes); mid-stroke where x is missing."""
     p = lambda name: params[:, P[name]][:, None]  # noqa: E731
     x = np.clip(np.where(np.isfinite(x), x, 0.5 * p("x_max")), 0.0, p("x_max"))
