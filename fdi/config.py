@@ -242,8 +242,9 @@ class FormNoise:
     #: 1, the std of each chamber's flow at the edge as a fraction of its null-leakage paths' flow
     #: (1: either path may or may not flow); 0: Eqs. (13)-(14) taken as exact
     band_share: float = 1.0
-    #: Pa (gauge): below it a chamber's oil releases air and its bulk modulus is unknown
-    low_pressure: float = 1.0e6
+    #: Pa (gauge): below it a chamber's oil releases air and its bulk modulus is unknown (near
+    #: atmospheric; at 1 MPa it would also blur a healthy meter-out chamber: K_extA read as K_extB)
+    low_pressure: float = 0.2e6
     #: 1, the std of the chamber's pressure-driving flow there as a fraction of its displacement
     #: flow A |v| (1: the pressure may not follow it at all); 0: Eqs. (8)-(9) taken as exact
     low_share: float = 1.0

@@ -146,20 +146,27 @@ def test_a_clipped_transmitter_reading_is_missing_to_the_filter():
     assert report.at_range_floor_samples == 30 and report.to_dict()["at_range_floor_samples"] == 30
 
 
-def test_a_development_rig_run_that_alarmed_before_its_onset_is_now_isolated():
+def test_a_development_rig_run_that_alarmed_before_its_onset_no_longer_does():
     """Run 78 of the development rig population (seed 32201127: offset -1 % from 7.29 s, open
     loop, 263 kg, a chamber cavitating on its transmitter's floor): with the model's edges taken
     as exact and the clipped readings as readings, the bank confirmed K_extB at 4.21 s, 3.1 s
-    before the onset (docs/fdi.md, "On rig recordings"). Now the first confirmed alarm follows
-    the onset and the bank names offset- within 1 s, sized within 5 %."""
+    before the onset (docs/fdi.md, "On rig recordings"). The shipped filter confirms nothing
+    before the onset (nor, at low_pressure 0.2 MPa, within the second after it: a detection this
+    run does not make); with the air-release noise up to 1 MPa the bank names offset- within 1 s
+    of the onset, sized within 5 %, the price of which is a healthy meter-out chamber blurred on
+    sam's own runs (tests/test_fdi_signatures.py)."""
     from rig import population
     from sam import default_plant_path
     from fdi import evaluate
 
     rec = population.simulate_run(default_plant_path().resolve(), population.DEVELOPMENT, 32201127, 78,
                                   "offset", -1.0)
-    res = evaluate.score(rec, evaluate.label(rec, "run 78"), load_plant(), None)
+    lab = evaluate.label(rec, "run 78")
+    res = evaluate.score(rec, lab, load_plant(), None)
     k_on = int(res["k_onset"][0])
+    assert int(res["conf_k"][0]) == -1 or int(res["conf_k"][0]) >= k_on
+    wide = FilterConfig(form_noise=FormNoise(low_pressure=1e6))
+    res = evaluate.score(rec, lab, load_plant(), None, cfg=wide)
     assert k_on <= int(res["conf_k"][0]) <= k_on + 1000
     assert int(res["iso_h"][0]) == 4 and int(res["iso_k"][0]) - k_on <= 1000  # offset-, as scored
     assert float(res["size_value"][0]) == pytest.approx(-1.0, rel=0.05)
