@@ -17,7 +17,8 @@ Carlo runs and :func:`analyse` turns those into rates with intervals; :mod:`fdi.
 
 from .bank import BankDesign
 from .config import (
-    CalibrationStates, Constraints, FilterConfig, Guards, Sensors, SigmaPoints, StopRules, UnknownInputStates,
+    CalibrationStates, Constraints, FilterConfig, FormNoise, Guards, Sensors, SigmaPoints, StopRules,
+    UnknownInputStates,
 )
 from .diagnosis import Diagnosis, diagnose, judge
 from .filter import FilterInput, FilterOutput, run_filter
@@ -30,7 +31,7 @@ from .tune import run_tune
 
 __all__ = [
     "BankDesign", "CalibrationStates", "Constraints", "Diagnosis", "FilterConfig", "FilterInput", "FilterOutput",
-    "Guards", "K_PER_LPM", "POS_THETA", "POS_X", "Replay", "STATE_NAMES", "Sensors", "SigmaPoints", "Statistics", "StopRules",
-    "Thresholds", "UnknownInputStates", "analyse", "diagnose", "judge", "leak_lpm", "replay", "replay_recording",
-    "run_filter", "run_tune",
+    "FormNoise", "Guards", "K_PER_LPM", "POS_THETA", "POS_X", "Replay", "STATE_NAMES", "Sensors", "SigmaPoints",
+    "Statistics", "StopRules", "Thresholds", "UnknownInputStates", "analyse", "diagnose", "judge", "leak_lpm",
+    "replay", "replay_recording", "run_filter", "run_tune",
 ]

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .config import CalibrationStates, Constraints, FilterConfig, Guards, Sensors, UnknownInputStates
+from .config import CalibrationStates, Constraints, FilterConfig, Guards, FormNoise, Sensors, UnknownInputStates
 from .faults import BANK, FAULTS, MULTI, PARAMS, free_states
 from .filter import FilterOutput, run_filter, sample_step
 from .states import K_PER_LPM, N_AUG, N_MODEL, SCALE, STATE_NAMES
@@ -132,14 +132,16 @@ class BankDesign:
 DESIGN = BankDesign()
 
 
-def reference_config(design: BankDesign = None, sensors: Sensors | None = None) -> FilterConfig:
+def reference_config(design: BankDesign = None, sensors: Sensors | None = None,
+                     form_noise: FormNoise | None = None) -> FilterConfig:
     """The healthy reference filter: the design's reference with every fault parameter held at
     its healthy value (no process noise, prior std x ``held_p0_factor``). ``sensors``: the
     detecting filter's, whose pressure, position and encoder noise the bank then assumes too (a
     recording's own noise, :func:`fdi.recording.recording_sensors`: a bank that expects quieter
-    transmitters than the recording's would credit their noise to whichever fault absorbs most)."""
+    transmitters than the recording's would credit their noise to whichever fault absorbs most).
+    ``form_noise``: the detecting filter's (:mod:`fdi.form_noise`), assumed too."""
     design = DESIGN if design is None else design
-    base = design.reference
+    base = design.reference if form_noise is None else design.reference.with_(form_noise=form_noise)
     if sensors is not None:
         base = base.with_(sensors=replace(base.sensors, pressure_noise=sensors.pressure_noise,
                                           x_noise=sensors.x_noise, theta_pulse=sensors.theta_pulse,
@@ -167,7 +169,7 @@ def bank_config(detect: FilterConfig, kept: tuple = ()) -> FilterConfig:
         process_noise={**detect.process_noise, **{f: 0.0 for f in FAULTS}},
         initial_sd=dict(detect.initial_sd), sigma_points=detect.sigma_points, sensors=detect.sensors,
         calibration=CalibrationStates(states=tuple(kept), walk=0.0, noise=const), unknown_inputs=UnknownInputStates(),
-        constraints=Constraints(projection="leak"), guards=Guards(nis_factor=0.0))
+        constraints=Constraints(projection="leak"), guards=Guards(nis_factor=0.0), form_noise=detect.form_noise)
 
 
 def _rows(inp, rows: np.ndarray, k0: int, k1: np.ndarray, L: int):
@@ -197,7 +199,7 @@ def run_reference(out: FilterOutput, rows: np.ndarray, k_end: np.ndarray, design
     L = int(max(1, np.max(k_end)))
     seg = _rows(inp, rows, np.zeros(len(rows), dtype=np.int64), np.minimum(k_end, inp.u.shape[1]), L)
     sub = replace(inp, params=inp.params[rows], **seg)
-    base = reference_config(design, out.config.sensors)
+    base = reference_config(design, out.config.sensors, out.config.form_noise)
     cfg = base.with_(calibration=replace(base.calibration, hold_after_s=out.config.calibration.hold_after_s),
                      hold_band_V=out.config.hold_band_V)
     # the fault states are known constants here: no sigma points for them (29 instead of 37)

@@ -230,6 +230,43 @@ class StopRules:
 
 
 @dataclass(frozen=True)
+class FormNoise:
+    """Process noise where the model's form is known to be uncertain (:mod:`fdi.form_noise`): on
+    the chamber pressures, at the null-leakage band's edge, where Eqs. (13)-(14) step the leakage
+    off (a real valve's fades over an unknown width, and a position loop parks the spool there),
+    and near cavitation, where Eqs. (8)-(9) keep a constant bulk modulus."""
+
+    #: 1, fraction of leak_band: "at the edge" is | |x_s + offset| - leak_band | <= margin leak_band
+    #: (a position loop parks the spool within a few tenths of it; the fade's width is unknown)
+    band_margin: float = 0.2
+    #: 1, the std of each chamber's flow at the edge as a fraction of its null-leakage paths' flow
+    #: (1: either path may or may not flow); 0: Eqs. (13)-(14) taken as exact
+    band_share: float = 1.0
+    #: Pa (gauge): below it a chamber's oil releases air and its bulk modulus is unknown (near
+    #: atmospheric; at 1 MPa it would also blur a healthy meter-out chamber: K_extA read as K_extB)
+    low_pressure: float = 0.2e6
+    #: 1, the std of the chamber's pressure-driving flow there as a fraction of its displacement
+    #: flow A |v| (1: the pressure may not follow it at all); 0: Eqs. (8)-(9) taken as exact
+    low_share: float = 1.0
+    #: s: the window over which the piston's rate is taken from the measured position
+    velocity_window_s: float = 0.02
+
+    def __post_init__(self):
+        for name in ("band_margin", "band_share", "low_share"):
+            _require(_number(getattr(self, name), 0.0, 1e3), f"form_noise.{name}", getattr(self, name),
+                     "must be a fraction >= 0")
+        _require(_number(self.low_pressure, -1e5, 1e9), "form_noise.low_pressure", self.low_pressure,
+                 "must be a gauge pressure >= -1e5 Pa")
+        _require(_number(self.velocity_window_s, 0.0, 10.0, open_low=True), "form_noise.velocity_window_s",
+                 self.velocity_window_s, "must be a duration > 0 s")
+
+    @property
+    def active(self) -> bool:
+        """Whether any term adds noise (else the filter is the model's own, bit for bit)."""
+        return self.band_share > 0.0 or self.low_share > 0.0
+
+
+@dataclass(frozen=True)
 class FilterConfig:
     """The augmented-state UKF's settings (:func:`fdi.filter.run_filter`); the defaults are the
     shipped filter."""
@@ -245,6 +282,7 @@ class FilterConfig:
     constraints: Constraints = field(default_factory=Constraints)  #: how estimates are kept physical
     guards: Guards = field(default_factory=Guards)  #: when a diverging filter is reset
     stops: StopRules = field(default_factory=StopRules)  #: what the filter learns on and near the end stops
+    form_noise: FormNoise = field(default_factory=FormNoise)  #: the pressures' noise where the model's form errs
     #: V: the input's hold band, |u| at most this: the valve at rest (calibration and stop holds)
     hold_band_V: float = 0.3
     #: the model's integration scheme in the prediction (sam.SCHEMES), one step per ms: "euler" is
@@ -267,7 +305,7 @@ class FilterConfig:
                 raise ValueError(f"FilterConfig.{name}: no value for {', '.join(map(repr, missing))}")
         for name, kind in (("sigma_points", SigmaPoints), ("sensors", Sensors), ("calibration", CalibrationStates),
                            ("unknown_inputs", UnknownInputStates), ("constraints", Constraints), ("guards", Guards),
-                           ("stops", StopRules)):
+                           ("stops", StopRules), ("form_noise", FormNoise)):
             _require(isinstance(getattr(self, name), kind), name, getattr(self, name), f"must be a {kind.__name__}")
         clash = set(self.calibration.states) & set(self.unknown_inputs.states)
         _require(not clash, "unknown_inputs.states", self.unknown_inputs.states,

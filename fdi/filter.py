@@ -27,6 +27,7 @@ from sam import SCHEMES, P, S, stroke_ends
 from sam.geometry import piston_position
 
 from .config import FilterConfig
+from .form_noise import form_gates
 from .kernel import KernelArgs, KernelOutputs, run
 from .sigma import merwe_weights, robust_sqrt
 from .states import (
@@ -297,8 +298,9 @@ def calibration_hold(inp: FilterInput, cfg: FilterConfig) -> np.ndarray:
 def random_walk_gates(inp: FilterInput, cfg: FilterConfig) -> tuple[np.ndarray, np.ndarray]:
     """The random-walk gates of the kernel: (B, T, 2) factors, [..., 0] the calibration states'
     (0 in long strokes, :func:`calibration_hold`, and pressed on a stop), [..., 1] the fault
-    states' (0 pressed on a stop, :func:`pressed_on_stop`), and (n,) each state's gate (-1: none,
-    its walk always runs)."""
+    states' (0 pressed on a stop, :func:`pressed_on_stop`), with ``cfg.form_noise`` [..., 2:4] those
+    of p_A and p_B (above 1 where the model's form errs, :func:`fdi.form_noise.form_gates`), and (n,)
+    each state's gate (-1: none, its walk always runs)."""
     n = cfg.n_states
     q_cal = calibration_hold(inp, cfg)
     group = np.full(n, -1, dtype=np.int64)
@@ -311,7 +313,12 @@ def random_walk_gates(inp: FilterInput, cfg: FilterConfig) -> tuple[np.ndarray, 
         group[calib] = 0
         q_fault = np.where(pressed_on_stop(inp, cfg), 0.0, 1.0)
         q_cal = q_cal * q_fault
-    return np.ascontiguousarray(np.stack([q_cal, q_fault], axis=-1)), group
+    gates = [q_cal, q_fault]
+    if cfg.form_noise.active:  # where the model's form errs
+        group[[S.p_A, S.p_B]] = [2, 3]
+        wide = form_gates(inp, cfg.form_noise, cfg.process_noise["p_A"], cfg.process_noise["p_B"])
+        gates += [wide[..., 0], wide[..., 1]]
+    return np.ascontiguousarray(np.stack(gates, axis=-1)), group
 
 
 def pressed_on_stop(inp: FilterInput, cfg: FilterConfig) -> np.ndarray:

@@ -270,11 +270,16 @@ def decide_pair(bank: BankResult, i: int, margin: float, d: Decision, second_fau
     ``margin``, every single also by ``second_fault_nats`` (the second fault is held to the
     evidence the first needed), both members moved by ``min_pair_size`` and it explains the
     window (mean NIS <= fit_nis). Pairs ahead of every single but not of each other are
-    candidates. The window's singles may revise the early decision ``d`` (:func:`revision`)."""
+    candidates. The window's singles may revise the early decision ``d`` (:func:`revision`).
+    Every lead is divided by the colour of the leader's innovations (:attr:`BankResult.colour`)."""
     names = bank.hyps(i)
     nv = int(bank.n_valid[i])
     ns = len(FAULTS)
-    ll = bank.loglik[i][:, nv - 1]  # (10,): singles, then pairs
+    # the evidence's honest size, as in decide: the leads of the best pair (and, for a revision,
+    # of the best single) divided by the colour of that leader's innovations
+    colour = np.ones(len(names)) if bank.colour is None else bank.colour[i][:, nv - 1]
+    raw = bank.loglik[i][:, nv - 1]  # (10,): singles, then pairs
+    ll = raw / colour[ns + int(np.argmax(raw[ns:]))]
     single = ll[:ns].max()
     srt = np.sort(ll[ns:])
     pair_llr = {names[ns + q]: float(ll[ns + q] - single) for q in range(len(names) - ns)}
@@ -282,7 +287,7 @@ def decide_pair(bank: BankResult, i: int, margin: float, d: Decision, second_fau
     fits = bank.nis[i, :len(names)] <= design.fit_nis  # a hypothesis that explains the window
     verdict = Several(pair_llr=pair_llr, pair_nis=pair_nis, window_misfit=not fits.any())
     if fits[int(np.argmax(ll[:ns]))]:
-        verdict = replace(verdict, **revision(bank, i, margin, d, ll[:ns], design))
+        verdict = replace(verdict, **revision(bank, i, margin, d, raw[:ns] / colour[int(np.argmax(raw[:ns]))], design))
     big = [all(abs(bank.change[i, ns + q, FAULTS.index(m)]) >= design.min_pair_size[m]
                for m in names[ns + q].split(PAIR_SEP)) and fits[ns + q] for q in range(len(names) - ns)]
     lead = max(margin, second_fault_nats)

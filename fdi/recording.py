@@ -28,6 +28,10 @@ class InputChecks:
 
     pressure_range_Pa: tuple = (0.0, 25e6)  #: the SAM's pressure sensors
     range_margin_Pa: float = 0.5e6  #: noise around the range's ends that is still accepted
+    #: Pa: a chamber pressure read within this of the range's lower end is missing to the filter: a
+    #: transmitter clips there (a cavitating chamber at -0.1 MPa reads 0), so such a reading says
+    #: only "at or below", while the model's chamber goes to the vapour pressure
+    floor_band_Pa: float = 50e3
     #: m: how far a position may stray outside the plant's stroke (sensor zero and noise); further
     #: out the recording and the plant file describe different machines
     position_margin_m: float = 0.005
@@ -74,6 +78,7 @@ class InputReport:
     u_gaps_held: int = 0  #: missing input samples held at the last value
     pressure_noise_Pa: float = float("nan")  #: the transmitters' own white noise (:func:`white_noise_std`)
     encoder_pulse_rad: float = float("nan")  #: the encoder's pulse found in the data (:func:`encoder_pulse`)
+    at_range_floor_samples: int = 0  #: chamber-pressure readings at the transmitter's floor, made missing
 
     def to_dict(self) -> dict:
         d = {"samples": self.samples, "dt_s": self.dt_s, "position": self.position,
@@ -81,6 +86,8 @@ class InputReport:
              "out_of_range_samples": self.out_of_range_samples, "ignored_optional_columns": self.ignored_optional_columns}
         if self.u_gaps_held:
             d["u_gaps_held"] = self.u_gaps_held
+        if self.at_range_floor_samples:
+            d["at_range_floor_samples"] = self.at_range_floor_samples
         if np.isfinite(self.pressure_noise_Pa):
             d["pressure_noise_Pa"] = round(float(self.pressure_noise_Pa), 1)
         if np.isfinite(self.encoder_pulse_rad):
@@ -204,6 +211,12 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
             bad = np.isfinite(a) & ((a < lo - checks.range_margin_Pa) | (a > hi + checks.range_margin_Pa))
             dropped += _drop(name, rec.t, ch, a, bad, "Pa", f"the sensor range {lo / 1e6:g}-{hi / 1e6:g} MPa",
                              drop_out_of_range)
+    floored = 0
+    for ch in ("pA", "pB"):
+        with np.errstate(invalid="ignore"):
+            at_floor = sig[ch] <= lo + checks.floor_band_Pa
+        floored += int(at_floor.sum())
+        sig[ch][at_floor] = np.nan
     column = "x" if "x" in sig else "theta"
     bad, stroke = _outside_stroke(column, sig[column], plant, checks.position_margin_m)
     dropped += _drop(name, rec.t, column, sig[column], bad, "m" if column == "x" else "rad", stroke,
@@ -225,7 +238,7 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
                       pos_kind=POS_X if column == "x" else POS_THETA, params=plant.vector()[None, :],
                       pS=sig["pS"][None, :] if "pS" in sig else None, position_sensor=sensor)
     return inp, InputReport(samples=rec.n, dt_s=rec.dt, position=column, supply_pressure_measured="pS" in sig,
-                            out_of_range_samples=dropped,
+                            out_of_range_samples=dropped, at_range_floor_samples=floored,
                             ignored_optional_columns=sorted(set(rec.signals) & {"v", "xs"}), u_gaps_held=gaps,
                             pressure_noise_Pa=float(np.fmax(white_noise_std(sig["pA"]), white_noise_std(sig["pB"]))),
                             encoder_pulse_rad=encoder_pulse(_angles(inp.pos[0], inp.pos_kind, inp.params[0]), checks)

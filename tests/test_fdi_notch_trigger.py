@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fdi import FilterConfig, Thresholds
+from fdi import FilterConfig, FormNoise, Thresholds
 from fdi.faults import HYPOTHESES, NOTCH_STATES, NOTCH_TRIGGER
 from fdi.statistics import notch_jump, statistics
 from fdi.states import N_AUG
@@ -115,7 +115,8 @@ def test_an_offset_the_notch_states_absorb_is_found_by_the_trigger():
                       onset=draw_onsets(n, seed), position_sensor="encoder", inputs="standard")
     k0 = int(runs.truth["k_onset"][b])
     th = Thresholds.shipped().with_(confirm_nats=20.0, persist_s=0.0)
-    out = run_filter(runs.inp, FilterConfig())
+    # the filter as the run was found with: the model's form taken as exact (no FormNoise)
+    out = run_filter(runs.inp, FilterConfig(form_noise=FormNoise(band_share=0.0, low_share=0.0)))
     st = statistics(out, th)
     second = k0 + 1000
     cusum_first = [int(first_alarm(st[h][b:b + 1], th.test.h[h])[0]) for h in HYPOTHESES]
@@ -131,6 +132,11 @@ def test_an_offset_the_notch_states_absorb_is_found_by_the_trigger():
     # with the lead at its honest size (fdi.whiteness) this run is not named within the second: a price
     d_honest = diagnose(out, th, b, st)
     assert d_honest.isolation_time_s is None or d_honest.isolation_time_s > out.t[second]
+    # the shipped filter (FormNoise at the null band's edge, where this offset moves the valve's
+    # real edge by its own size) does not name it within the second either
+    shipped = run_filter(runs.inp, FilterConfig())
+    d_shipped = diagnose(shipped, th, b, statistics(shipped, th))
+    assert d_shipped.isolation_time_s is None or d_shipped.isolation_time_s > out.t[second]
 
 
 def test_after_long_segment_marks_the_first_motion_after_a_long_rest_or_stroke_only():

@@ -85,13 +85,16 @@ def _filterpy_reference(inp, cfg, z0, P0, b=0, loglik=None, held=None):
     ukf = UnscentedKalmanFilter(dim_x=n, dim_z=3, dt=inp.dt, hx=hx, fx=fx, points=pts)
     ukf.x = z0[b][free].copy()
     ukf.P = P0[b][np.ix_(free, free)].copy()
-    ukf.Q = np.diag((cfg.noise_vectors()[0][free] * math.sqrt(inp.dt) / scale[free]) ** 2)
+    q0 = (cfg.noise_vectors()[0][free] * math.sqrt(inp.dt) / scale[free]) ** 2
+    gates, group = random_walk_gates(inp, cfg)  # holds, and the form noise (fdi.form_noise)
+    gated = group[free] >= 0
     ukf.R = np.diag(measurement_variances(cfg, inp.pos_kind))
     y = scaled_measurements(inp)[b]
     T = inp.u.shape[1]
     xs, Ps = np.empty((T, n_full)), np.empty((T, n_full))
     for k in range(T):
         if k > 0:
+            ukf.Q = np.diag(np.where(gated, q0 * gates[b, k, np.maximum(group[free], 0)], q0))
             ukf.predict(dt=inp.dt, u=inp.u[b, k - 1])
         else:
             ukf.sigmas_f = pts.sigma_points(ukf.x, ukf.P)

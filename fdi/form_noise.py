@@ -1,0 +1,122 @@
+"""Process noise on the chamber pressures where the model's form is known to be uncertain.
+
+The filter's pressure states walk with the model's flow error (``PROCESS_NOISE["p_A"]``), the
+same everywhere. In two places a real machine departs from the form of Eqs. (8)-(14) by far
+more, and the filter is told so there (:class:`fdi.config.FormNoise`), so that what the model
+cannot predict is not read as a fault:
+
+* **the null-leakage band's edge.** Eqs. (13)-(14) let the laminar null leakage flow while
+  |x_s + offset| < leak_band and stop it in one step at the edge. A real valve's leakage fades
+  over a width nobody measured, and a position loop holding a load parks the spool exactly there
+  (inside the band the null leakage drains the loaded chamber, outside it the metering edge
+  fills it: the step is the loop's equilibrium). There each of the chamber's two null-leakage
+  paths may or may not flow: its flow is uncertain by s_c, the root sum of squares of the two
+  paths' flows at the measured pressure. The spool position is the input through Eq. (15),
+  which the filter integrates too (at rest x_s = K_u u, and a loop's u is logged).
+* **near cavitation.** Below ``low_pressure`` a chamber's oil releases air and vapour, its
+  bulk modulus falls by orders of magnitude and its pressure stops following the displacement
+  flow until the cavity is filled again; Eqs. (8)-(9) with a constant B_eff and a clamp at the
+  vapour pressure draw neither. There the pressure rate is uncertain by the displacement flow's
+  whole effect, s_c = A_c |v|, with v the measured position's rate over ``velocity_window_s``.
+
+Each pressure term adds the variance of the pressure its flow error builds in one sample of dt,
+
+    q_extra^2 = (share s_c B_eff / V_c dt)^2       [Pa^2 per sample],
+
+V_c the chamber's volume at the measured position (Eqs. (8)-(9)); the kernel's process-noise gates
+carry it as a factor 1 + q_extra^2 / (q^2 dt) on the state's own variance (:func:`form_gates`).
+This makes the model honest where it is known to be uncertain; it assumes no fade shape and no
+air law.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import cont2discrete, lfilter, lfilter_zi
+
+from sam import P
+from sam.dynamics import areas
+from sam.geometry import piston_position
+
+from .states import POS_X
+
+
+def spool_positions(u: np.ndarray, params: np.ndarray, dt: float) -> np.ndarray:
+    """(B, T) spool position x_s [1, fraction of travel] of inputs ``u`` (B, T) [V] through Eq.
+    (15), x_s'' = K_u w^2 u - 2 zeta w x_s' - w^2 x_s, discretised exactly for an input held
+    over each sample of ``dt`` [s], from rest at the first input (x_s = K_u u[0])."""
+    u = np.nan_to_num(np.asarray(u, dtype=float))
+    xs = np.empty_like(u)
+    spool = params[:, [P.K_u, P.omega_n, P.zeta]]
+    for key in np.unique(spool, axis=0):
+        rows = np.flatnonzero((spool == key).all(axis=1))
+        K, w, zeta = key
+        b, a, _ = cont2discrete(([K * w * w], [1.0, 2.0 * zeta * w, w * w]), dt, method="zoh")
+        b = np.ravel(b)
+        zi = lfilter_zi(b, a)[None, :] * u[rows, :1]
+        xs[rows], _ = lfilter(b, a, u[rows], axis=-1, zi=zi)
+    return xs
+
+
+def near_band_edge(x_s: np.ndarray, params: np.ndarray, margin: float) -> np.ndarray:
+    """(B, T) bool: |x_s + offset| within ``margin`` x leak_band of the band's edge leak_band
+    (Eqs. (13)-(14); offset and leak_band of each run's plant vector params (B, len(P)))."""
+    band = params[:, P.leak_band][:, None]
+    return np.abs(np.abs(x_s + params[:, P.offset][:, None]) - band) <= margin * band
+
+
+def null_flow_spread(pA: np.ndarray, pB: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(s_A, s_B) (B, T) [m^3/s]: the root sum of squares of the two laminar null-leakage paths
+    of Eqs. (13)-(14) into and out of chambers A and B at pressures pA, pB (B, T) [Pa] (supply and
+    tank of the plant vectors params (B, len(P))): at the edge each path's leakage may or may not
+    flow (the one closing there depends on the side), independently."""
+    p = lambda name: params[:, P[name]][:, None]  # noqa: E731
+    pS, pT = p("p_S"), p("p_T")
+    return (np.hypot(p("K_leak_PA") * (pS - pA), p("K_leak_AT") * (pA - pT)),
+            np.hypot(p("K_leak_PB") * (pS - pB), p("K_leak_BT") * (pB - pT)))
+
+
+def chamber_capacitances(x: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B_eff / V_A, B_eff / V_B) (B, T) [Pa/m^3] at piston positions x (B, T) [m] (Eqs. (8)-(9)'s
+    volumes); mid-stroke where x is missing."""
+    p = lambda name: params[:, P[name]][:, None]  # noqa: E731
+    x = np.clip(np.where(np.isfinite(x), x, 0.5 * p("x_max")), 0.0, p("x_max"))
+    A_A, A_B = areas(p("D_piston"), p("D_rod"))
+    return p("B_eff") / (p("V_0A") + A_A * x), p("B_eff") / (p("V_0B") + A_B * (p("x_max") - x))
+
+
+def measured_rates(x: np.ndarray, dt: float, window_s: float) -> np.ndarray:
+    """(B, T) piston rate [m/s] of positions x (B, T) [m]: the causal difference over
+    ``window_s`` (one sample at least; 0 where a reading is missing and before the window fills)."""
+    w = max(1, int(round(window_s / dt)))
+    v = np.zeros_like(x)
+    v[:, w:] = (x[:, w:] - x[:, :-w]) / (w * dt)
+    return np.nan_to_num(v)
+
+
+def form_gates(inp, noise, q_pA: float, q_pB: float) -> np.ndarray:
+    """(B, T, 2) factors on the random walk of p_A and p_B (std ``q_pA``, ``q_pB`` [Pa/sqrt(s)])
+    of the runs of ``inp`` (:class:`fdi.filter.FilterInput`) for the settings ``noise``
+    (:class:`fdi.config.FormNoise`): 1 + q_extra^2 / (q^2 dt) (module docstring, the two terms'
+    variances added), 1 where neither applies, where a reading is missing, and for a state
+    without a random walk (nothing to scale)."""
+    B, T = inp.u.shape
+    gates = np.ones((B, T, 2))
+    p = lambda name: inp.params[:, P[name]][:, None]  # noqa: E731
+    x = inp.pos if inp.pos_kind == POS_X else piston_position(inp.pos, p("L_1"), p("L_2"), p("L_3"))
+    caps = chamber_capacitances(x, inp.params)
+    var = [np.zeros((B, T)), np.zeros((B, T))]  # (Pa/s)^2 of each chamber's pressure rate
+    if noise.band_share > 0.0:
+        edge = near_band_edge(spool_positions(inp.u, inp.params, inp.dt), inp.params, noise.band_margin)
+        for c, flow in enumerate(null_flow_spread(inp.pA, inp.pB, inp.params)):
+            var[c] += np.where(edge, (noise.band_share * flow * caps[c]) ** 2, 0.0)
+    if noise.low_share > 0.0:
+        speed = np.abs(measured_rates(x, inp.dt, noise.velocity_window_s))
+        for c, (pc, area) in enumerate(zip((inp.pA, inp.pB), areas(p("D_piston"), p("D_rod")))):
+            with np.errstate(invalid="ignore"):
+                low = pc < noise.low_pressure
+            var[c] += np.where(low, (noise.low_share * area * speed * caps[c]) ** 2, 0.0)
+    for c, q in enumerate((q_pA, q_pB)):
+        if q > 0.0:
+            gates[:, :, c] = 1.0 + np.nan_to_num(var[c]) * inp.dt / (q * q)
+    return gates
