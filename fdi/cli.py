@@ -92,7 +92,7 @@ def add_commands(subparsers) -> None:
     t.add_argument("--source", default="rig", choices=("rig", "sam"),
                    help="what records the runs: rig (default; the rig simulator, rig/population.py's development "
                         "form: closed and open loops, 20-60 s healthy runs, the machine drawn off its plant file, "
-                        "data the filter's model did not make) or sam (the model's own batched simulator: about 3x "
+                        "data the filter's model did not make) or sam (the model's own batched simulator: about 5x "
                         "cheaper per tune, in-model, for comparison). With rig, --runs N gives N + max(5, N // 2) healthy "
                         "runs of 20-60 s and the fault runs below with their onsets at 4-8 s")
     t.add_argument("--workers", type=integer(minimum=1), default=None,
