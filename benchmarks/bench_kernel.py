@@ -11,9 +11,7 @@ round's pairs):
 (b) before: the step before the lane kernel (benchmarks/kernel_before.py): one run per loop
     iteration, scalar and branched, numba, both threads;
 (c) lanes: sam.simulate_batch, blocks of sam.dynamics.LANES runs in one vectorised loop, both
-    threads; in float64 (bit for bit (b)'s numbers) and float32 (the GSA's option); each as one
-    call that allocates its recording, and into a buffer the caller reuses (``out=``, as the GSA
-    does chunk after chunk): the difference is the first touch of fresh memory.
+    threads; in float64 (bit for bit (b)'s numbers) and float32 (the GSA's option).
 
 Then the estimated limit of this machine for this step, and how it was estimated (the
 instructions of the compiled lane loop over the cores' vector throughput), and what the kernel
@@ -164,15 +162,9 @@ def run_before(params, x0):
                                         channels=CHANNELS)[0]
 
 
-def run_lanes(params, x0, precision="float64", out=None):
+def run_lanes(params, x0, precision="float64"):
     return sam.simulate_batch(params, np.full(N_STEPS, U), DT, x0=x0, record_every=RECORD_EVERY, channels=CHANNELS,
-                              precision=precision, out=out)
-
-
-def record_buffer(n_runs: int, precision: str) -> np.ndarray:
-    """A recording buffer (n_runs, channels, instants) for ``out=``, its pages touched once: a
-    caller that simulates batch after batch reuses it instead of faulting in fresh memory."""
-    return np.zeros((n_runs, len(CHANNELS), N_STEPS // RECORD_EVERY + 1), dtype=precision)
+                              precision=precision)
 
 
 def timed(fn, *args) -> tuple[float, dict]:
@@ -268,15 +260,12 @@ def main() -> None:
     a_out = numpy_simulate(params[:na], x0[:na], na)
     c_out = run_lanes(params[:na], x0[:na])
     agree = max(np.max(np.abs(a_out[c] - c_out[c])) / np.max(np.abs(c_out[c])) for c in CHANNELS)
-    bufs = {p: record_buffer(args.runs, p) for p in ("float64", "float32")}
-    t = {"a": [], "b": [], "c": [], "c32": [], "c_out": [], "c32_out": []}
+    t = {"a": [], "b": [], "c": [], "c32": []}
     for _ in range(args.repeats):
         t["a"].append(timed(numpy_simulate, params[:na], x0[:na], na)[0] / (na * N_STEPS))
         t["b"].append(timed(run_before, params, x0)[0] / (args.runs * N_STEPS))
         t["c"].append(timed(run_lanes, params, x0)[0] / (args.runs * N_STEPS))
         t["c32"].append(timed(run_lanes, params, x0, "float32")[0] / (args.runs * N_STEPS))
-        t["c_out"].append(timed(run_lanes, params, x0, "float64", bufs["float64"])[0] / (args.runs * N_STEPS))
-        t["c32_out"].append(timed(run_lanes, params, x0, "float32", bufs["float32"])[0] / (args.runs * N_STEPS))
     ns = {k: 1e9 * np.median(v) for k, v in t.items()}
     pair = {k: np.median(np.array(t[k]) / np.array(t["c"])) for k in ("a", "b")}
     b_out, c_full = run_before(params, x0), run_lanes(params, x0)
@@ -290,9 +279,6 @@ def main() -> None:
     print(f"(c) lanes, float64, {args.runs} runs, 2 threads : {ns['c']:6.1f} ns per run-step "
           f"({'bit for bit' if exact else 'NOT bit for bit'} (b)'s)")
     print(f"(c) lanes, float32, {args.runs} runs, 2 threads : {ns['c32']:6.1f} ns per run-step")
-    print(f"(c) lanes into a reused buffer (out=), 2 threads : float64 {ns['c_out']:6.1f}, float32 "
-          f"{ns['c32_out']:6.1f} ns per run-step (fresh/reused {np.median(np.array(t['c']) / np.array(t['c_out'])):.2f}x, "
-          f"{np.median(np.array(t['c32']) / np.array(t['c32_out'])):.2f}x)")
     print(f"ratios (median of the rounds' pairs): (a)/(c) {pair['a']:.1f}x, (b)/(c) {pair['b']:.1f}x, "
           f"(c)/(c32) {np.median(np.array(t['c']) / np.array(t['c32'])):.2f}x")
     cache64, cache32 = in_cache_rate("float64"), in_cache_rate("float32")
@@ -303,9 +289,7 @@ def main() -> None:
           f"the paper's lane loop (Euler, float64) has {ins['zmm']} 512-bit instructions ({ins['div']} divisions, {ins['sqrt']} square "
           f"roots) for 8 lanes; at {ZMM_PER_CYCLE:g} per cycle ({DIV_CYCLES:g} and {SQRT_CYCLES:g} cycles per "
           f"division and root), {ghz:.2f} GHz, {os.cpu_count()} cores; memory traffic not counted")
-    best = min(ns["c"], ns["c32"])
-    print(f"targets: <= 4 ns per run-step ({'met' if best <= 4 else 'NOT met'} by the batch as one call; "
-          f"{'met' if min(ns['c_out'], ns['c32_out']) <= 4 else 'NOT met'} into a reused buffer), >= 10x (a) "
+    print(f"targets: <= 4 ns per run-step ({'met' if ns['c'] <= 4 else 'NOT met'}), >= 10x (a) "
           f"({'met' if pair['a'] >= 10 else 'NOT met'})")
 
 
