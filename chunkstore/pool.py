@@ -5,6 +5,10 @@ Each executor takes ``fn`` and ``tasks`` (key -> argument tuple) and yields
 cancels what has not started, still yields the tasks that had already finished
 (so that they are saved), then raises that task's exception with a note naming it.
 
+Each local worker gets its share of the cores for BLAS and OpenMP threads (cores // workers,
+at least 1): a worker's own small matrix calls (scipy's filters, LAPACK) otherwise start a thread
+per core in every worker, and those threads spin against the other workers.
+
 The local pool's workers die with their parent: on Linux the kernel sends them
 SIGKILL when the thread that started them ends (``prctl(PR_SET_PDEATHSIG)``),
 elsewhere a thread in each worker exits when its parent is gone. A ``kill -9``
@@ -25,22 +29,34 @@ import uuid
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
+from threadpoolctl import threadpool_limits
+
 from chunkstore.errors import StoreError
 
 EXECUTORS = ("inline", "processes", "dask")
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 _WATCH_PERIOD_S = 0.5  # how often a worker without prctl looks for its parent
+_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def process_pool(workers: int) -> ProcessPoolExecutor:
     """A ``ProcessPoolExecutor`` of ``workers`` fresh interpreters ("spawn": safe with the
-    threads of tqdm, BLAS or OpenMP in the parent) that die with this process."""
+    threads of tqdm, BLAS or OpenMP in the parent) that die with this process and share the
+    cores' BLAS/OpenMP threads between them."""
     return ProcessPoolExecutor(
         max_workers=workers,
         mp_context=multiprocessing.get_context("spawn"),
-        initializer=die_with_parent,
-        initargs=(os.getpid(),),
+        initializer=start_worker,
+        initargs=(os.getpid(), max(1, (os.cpu_count() or 1) // workers)),
     )
+
+
+def start_worker(parent_pid: int, threads: int) -> None:
+    """Worker initializer: die with ``parent_pid``; at most ``threads`` BLAS/OpenMP threads."""
+    die_with_parent(parent_pid)
+    for name in _THREAD_VARIABLES:  # libraries loaded later (scipy's own OpenBLAS) read these
+        os.environ[name] = str(threads)
+    threadpool_limits(limits=threads)  # those already loaded; kept for the worker's life
 
 
 def die_with_parent(parent_pid: int) -> None:

@@ -13,7 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from chunkstore import LockedError, Store, StoreError, StoreWarning, compute
+import scipy.linalg  # noqa: F401  (a worker unpickling blas_threads loads scipy's own BLAS)
+from threadpoolctl import threadpool_info
+
+from chunkstore import LockedError, Store, StoreError, StoreWarning, compute, process_pool
 
 REPO = Path(__file__).resolve().parents[1]
 FP = {"job": "squares", "n": 4}
@@ -183,3 +186,18 @@ def test_pool_workers_die_with_their_parent_after_kill_9(tmp_path):
             pid = int(p.name.split("_")[1])
             if _alive(pid):
                 os.kill(pid, signal.SIGKILL)
+
+
+def blas_threads(_: int) -> int:
+    """Module level, so that worker processes can unpickle it: the most BLAS/OpenMP threads any
+    library loaded in this worker would start (numpy's and scipy's OpenBLAS are two)."""
+    return max((pool["num_threads"] for pool in threadpool_info()), default=1)
+
+
+def test_pool_workers_share_the_cores_blas_threads():
+    """Each of W workers may start at most cores // W BLAS threads (at least one): a
+    worker's threads spinning against the other workers cost the tune 25 % of its time."""
+    workers = 2
+    with process_pool(workers) as pool:
+        seen = list(pool.map(blas_threads, range(workers)))
+    assert seen == [max(1, (os.cpu_count() or 1) // workers)] * workers
