@@ -2,7 +2,7 @@
 
 filter output -> :func:`fdi.statistics.statistics` -> :func:`fdi.alarms.alarms` -> for each
 alarm the likelihood bank (:func:`fdi.isolation.judge_alarms`): a withdrawn alarm restarts the
-tests after its window (:func:`fdi.statistics.restarted`) and the next alarm is judged, until
+tests after its window (:func:`fdi.statistics.restart`) and the next alarm is judged, until
 one stands or the record ends (:func:`judge`) -> :class:`Diagnosis`: healthy, a fault, several
 faults, or a fault that is not isolable, with sizes, confidences and the filter's health.
 """
@@ -24,7 +24,7 @@ from .isolation import (
     Decision, best_single, confirm_evidence, judge_alarms, margin_for, margin_level, max_episodes,
 )
 from .states import leak_lpm
-from .statistics import Statistics, restarted, statistics, tested_seconds
+from .statistics import RestartBasis, Statistics, restart, restart_basis, statistics, tested_seconds
 from .thresholds import Thresholds
 
 STATUSES = ("healthy", "fault", "several faults", "fault, not isolable")
@@ -125,7 +125,7 @@ def judge(out: FilterOutput, th: Thresholds, stats: Statistics | None = None, ba
     decs = judge_alarms(out, stats, *first_alarms(stats, th.test.h), k_ready, rows=rows, k_stop=stop[rows], **common)
     todo = _withdraw(decs, decs)
     # the reference is causal: one run over each restarting run's whole record serves all its later episodes
-    reference = None
+    reference = basis = None
     for _ in range(max_episodes(T, dt, design) - 1):
         start = np.zeros(B, dtype=np.int64)
         for b in todo:  # the tests restart where the withdrawn alarm's window ended
@@ -135,13 +135,31 @@ def judge(out: FilterOutput, th: Thresholds, stats: Statistics | None = None, ba
             return decs
         if reference is None:
             reference = (np.array(todo), run_reference(out, np.array(todo), stop[todo], design))
-        again = restarted(out, th, start, baseline)
-        nxt = judge_alarms(out, again, *first_alarms(again, th.test.h), np.maximum(k_ready, start), rows=np.array(todo),
-                           k_stop=stop[todo], reference=reference, **common)
+        # what the tests share across restarts is computed once; each restart only its runs, from it on
+        basis = restart_basis(out, th, baseline) if basis is None else basis
+        again = restart(basis, todo, start[todo])
+        nxt = judge_alarms(out, again, *first_alarms_of(again, th.test.h, todo), np.maximum(k_ready, start),
+                           rows=np.array(todo), k_stop=stop[todo], reference=reference, **common)
         todo = _withdraw(nxt, decs)
     for b in todo:
         decs[b] = replace(decs[b], episodes_capped=True)
     return decs
+
+
+def first_alarms_of(stats: Statistics, h: dict, rows) -> tuple[np.ndarray, tuple]:
+    """:func:`fdi.alarms.first_alarms` of runs ``rows`` of restarted statistics (:func:`restart`),
+    looked for from their earliest restart on (0 before it): (B,) the first alarm (-1: none or
+    not in ``rows``) and per run the test (None: none or not in ``rows``)."""
+    rows = np.asarray(rows, dtype=np.int64)
+    B = len(stats.start)
+    s0 = int(stats.start[rows].min())
+    k, who_rows = first_alarms(Statistics({n: g[rows, s0:] for n, g in stats.items()}, stats.start[rows]), h)
+    first = np.full(B, -1, dtype=np.int64)
+    first[rows] = np.where(k >= 0, k + s0, -1)
+    who = [None] * B
+    for b, w in zip(rows, who_rows):
+        who[b] = w
+    return first, tuple(who)
 
 
 def _withdraw(new: dict, decs: dict) -> list:
@@ -160,11 +178,11 @@ def shown_statistics(out: FilterOutput, th: Thresholds, diag: Diagnosis, baselin
     withdrawn alarm with re-learnt baselines (``diag.likelihood["tests_restarted_s"]``)."""
     one = slice(b, b + 1)
     stats = {h: g[one].copy() for h, g in statistics(out, th, baseline).items()}
+    basis: RestartBasis | None = None
     for ts in diag.likelihood.get("tests_restarted_s", []):
         k = int(np.searchsorted(out.t, ts))
-        start = np.zeros(out.mean.shape[0], dtype=np.int64)
-        start[b] = k
-        for h, g in restarted(out, th, start, baseline).items():
+        basis = restart_basis(out, th, baseline) if basis is None else basis
+        for h, g in restart(basis, [b], [k]).items():
             stats[h][0, k:] = g[b, k:]
     return stats
 

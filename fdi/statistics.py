@@ -200,7 +200,8 @@ def restarted(out: FilterOutput, th: Thresholds, start: np.ndarray, baseline=Non
     """The statistics with each run b whose start[b] > 0 restarted there (after a withdrawn
     alarm), the baselines of :data:`REBASE_PARAMS` re-learnt as its mean estimates over the
     ``rebase_s`` before the restart: the bank has just judged that excursion healthy. The other
-    baselines: ``baseline`` (B, 4), or the recording's own."""
+    baselines: ``baseline`` (B, 4), or the recording's own. Every run over the whole record: the
+    definition; :func:`restart` computes the restarted runs alone, from their restarts on."""
     dt = sample_step(out.t)
     n = max(1, int(round(th.test.rebase_s / dt)))
     B = out.mean.shape[0]
@@ -211,6 +212,87 @@ def restarted(out: FilterOutput, th: Thresholds, start: np.ndarray, baseline=Non
     for b in np.flatnonzero(start > 0):
         base[b, relearn] = out.mean[b, max(0, start[b] - n):start[b]][:, cols].mean(axis=0)[relearn]
     return statistics(out, th, base, start)
+
+
+@dataclass(frozen=True)
+class RestartBasis:
+    """What every restart of the change tests of one filter output (B runs, T samples) shares:
+    the parts of :func:`restarted` that depend neither on where a test restarts nor on its
+    baselines, computed once (:func:`restart_basis`) and sliced at each restart (:func:`restart`)."""
+
+    mean: np.ndarray  #: (B, T, n) the filter's posterior means (SI)
+    spread: dict  #: parameter -> (B, T) its change residual's spread (:func:`change_spread`, SI)
+    active: dict  #: hypothesis -> (B, T) bool, where its CUSUM runs (votes in the regime, not held)
+    drift: dict  #: parameter -> its CUSUM drift [sigma]: a number, or (B, T)
+    armed: np.ndarray  #: (T,) bool, where a restarted change test is armed: from the warm-up on
+    base: np.ndarray  #: (B, 4) the baselines a restart keeps (PARAMS order, SI)
+    notch: np.ndarray | None  #: (B, T) the notch-flow trigger from sample 0 [sigma] (None: not run)
+    notch_window: int  #: samples of the trigger's jump window
+    warm: int  #: samples of the warm-up, before which no test runs
+    rebase: int  #: samples a re-learnt baseline is averaged over (``rebase_s``)
+    dt: float  #: s, the sample step
+    memory_s: float | None  #: s, the CUSUM's memory
+
+
+def restart_basis(out: FilterOutput, th: Thresholds, baseline=None) -> RestartBasis:
+    """The :class:`RestartBasis` of ``out`` under ``th``; ``baseline`` (B, 4) as given to
+    :func:`restarted` (None: the recording's own)."""
+    dt = sample_step(out.t)
+    t = th.test
+    reg, hidden, base, _ = masks(out, th, baseline)
+    armed = out.t >= th.window.warmup_s  # a restart's baselines are given: armed after the warm-up
+    long_stroke = long_stroke_mask(out, th)
+    spread = {p: change_spread(out.std[:, :, j], np.asarray(t.sigma[p], dtype=float)[reg], t.sd_weight(p))
+              for p, j in PARAMS.items()}
+    active = {h: np.asarray(t.votes[h.rstrip("+-")], dtype=bool)[reg] & ~hidden[:, list(PARAMS).index(h.rstrip("+-"))]
+              for h in HYPOTHESES}
+    notch = None
+    if uses_notch_trigger(out, th):
+        notch = notch_jump(out, th, notch_armed(out, th, np.broadcast_to(armed, hidden.shape)))
+    return RestartBasis(out.mean, spread, active, {p: cusum_drift(p, long_stroke, th) for p in PARAMS}, armed,
+                        np.array(base, dtype=float), notch, max(1, int(round(t.notch_jump_window_s / dt))),
+                        int(round(th.window.warmup_s / dt)), max(1, int(round(t.rebase_s / dt))), dt, t.memory_s)
+
+
+def rebased(basis: RestartBasis, rows: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """(n, 4) the baselines of runs ``rows`` (n,) restarted at samples ``start`` (n,): those of
+    :data:`REBASE_PARAMS` their mean estimates over the ``rebase_s`` before the restart (where
+    start > 0), the others kept."""
+    base = basis.base[rows].copy()
+    cols = list(PARAMS.values())
+    relearn = [i for i, p in enumerate(PARAMS) if p in REBASE_PARAMS]
+    for q, (b, s) in enumerate(zip(rows, start)):
+        if s > 0:
+            base[q, relearn] = basis.mean[b, max(0, s - basis.rebase):s][:, cols].mean(axis=0)[relearn]
+    return base
+
+
+def restart(basis: RestartBasis, rows, start) -> Statistics:
+    """:func:`restarted` for runs ``rows`` (n,) restarted at samples ``start`` (n,), computed for
+    those runs alone and from the earliest restart on (the CUSUM is causal and starts from 0):
+    test -> (B, T), 0 in the other runs and before each run's restart (never before the warm-up)."""
+    rows, start = np.asarray(rows, dtype=np.int64), np.asarray(start, dtype=np.int64)
+    B, T = basis.mean.shape[:2]
+    warm = np.maximum(basis.warm, start)
+    s0 = int(warm.min()) if len(rows) else T
+    base = rebased(basis, rows, start)
+    chg = {p: np.where(basis.armed[s0:], (basis.mean[rows, s0:, j] - base[:, i:i + 1]) / basis.spread[p][rows, s0:], 0.0)
+           for i, (p, j) in enumerate(PARAMS.items())}
+    part = {}
+    for h, (_, sign) in HYPOTHESES.items():
+        p = h.rstrip("+-")
+        drift = basis.drift[p] if np.ndim(basis.drift[p]) == 0 else basis.drift[p][rows, s0:]
+        part[h] = cusum(sign * chg[p], drift, basis.dt, warm - s0, basis.active[h][rows, s0:], basis.memory_s)
+    if basis.notch is not None:
+        after = np.arange(s0, T)[None, :] >= (warm + basis.notch_window)[:, None]
+        part[NOTCH_TRIGGER] = np.where(after, basis.notch[rows, s0:], 0.0)
+    g = {}
+    for h, gh in part.items():
+        g[h] = np.zeros((B, T))
+        g[h][rows, s0:] = gh
+    runs_start = np.full(B, basis.warm, dtype=np.int64)
+    runs_start[rows] = warm
+    return Statistics(g, runs_start)
 
 
 def notch_armed(out: FilterOutput, th: Thresholds, ready: np.ndarray) -> np.ndarray:
