@@ -10,14 +10,12 @@ import dataclasses
 import numpy as np
 import pytest
 
+import fdi.diagnosis
 from sam import load_plant
 from fdi import FilterConfig, Thresholds, run_filter
 from fdi.alarms import first_alarms
-from fdi.bank import DESIGN, run_reference
-from fdi.conditions import held_on_stop, long_stroke_mask, on_end_stop
-from fdi.diagnosis import _withdraw, diagnose, first_alarms_of, judge, shown_statistics
-from fdi.filter import sample_step
-from fdi.isolation import confirm_evidence, judge_alarms, margin_for, max_episodes
+from fdi.conditions import long_stroke_mask
+from fdi.diagnosis import diagnose, first_alarms_of, judge, shown_statistics
 from fdi.statistics import baseline_values, restart, restart_basis, restarted, statistics
 from fdi.synth import input_signal, lpm, profile, simulate_runs
 
@@ -25,40 +23,35 @@ DT = 1e-3
 ONSET_S = 6.0  #: s, the K_extA step of run 1
 
 
-def judge_reference(out, th, stats, baseline=None, rows=None, k_stop=None, size=True, pairs=None, design=DESIGN):
-    """fdi.diagnosis.judge as it was with the full recomputation at each restart: every run's
-    statistics over the whole record (:func:`restarted`) and their first alarms over it."""
-    dt = sample_step(out.t)
-    pairs = th.confirmation.several_faults if pairs is None else pairs
-    B, T = out.mean.shape[:2]
-    rows = np.arange(B) if rows is None else np.asarray(rows, dtype=np.int64)
-    stop = np.full(B, T, dtype=np.int64)
-    if k_stop is not None:
-        stop[rows] = np.minimum(T, k_stop)
-    k_ready = int(round((th.window.warmup_s + (th.window.baseline_s if baseline is None else 0.0)) / dt))
-    common = dict(margin=margin_for(th.confirmation.false_isolation_level), horizon_s=design.decision_window_s,
-                  size=size, pairs=pairs, pair_horizon_s=design.pair_window_s,
-                  confirm=confirm_evidence(th.confirmation.confirm_nats), hidden=held_on_stop(out, th),
-                  on_stop=on_end_stop(out), design=design, persist_s=th.confirmation.persist_s)
-    decs = judge_alarms(out, stats, *first_alarms(stats, th.test.h), k_ready, rows=rows, k_stop=stop[rows], **common)
-    todo = _withdraw(decs, decs)
-    reference = None
-    for _ in range(max_episodes(T, dt, design) - 1):
-        start = np.zeros(B, dtype=np.int64)
-        for b in todo:
-            start[b] = decs[b].standing.window_end
-        todo = [b for b in todo if start[b] < stop[b] - 1]
-        if not todo:
-            return decs
-        if reference is None:
-            reference = (np.array(todo), run_reference(out, np.array(todo), stop[todo], design))
-        again = restarted(out, th, start, baseline)
-        nxt = judge_alarms(out, again, *first_alarms(again, th.test.h), np.maximum(k_ready, start), rows=np.array(todo),
-                           k_stop=stop[todo], reference=reference, **common)
-        todo = _withdraw(nxt, decs)
-    for b in todo:
-        decs[b] = dataclasses.replace(decs[b], episodes_capped=True)
-    return decs
+def full_recomputation(monkeypatch):
+    """Make fdi.diagnosis restart the tests as it did before the incremental path: every run's
+    statistics over the whole record at each restart (:func:`restarted`, runs not restarting
+    from 0) and their first alarms over it (:func:`fdi.alarms.first_alarms`). Returns the list
+    of the restarts it made (how many runs each)."""
+
+    used = []
+
+    def restart_full(basis, rows, start):
+        out, th, baseline = basis
+        used.append(len(rows))
+        full = np.zeros(out.mean.shape[0], dtype=np.int64)
+        full[rows] = start
+        return restarted(out, th, full, baseline)
+
+    monkeypatch.setattr(fdi.diagnosis, "restart_basis", lambda out, th, baseline=None: (out, th, baseline))
+    monkeypatch.setattr(fdi.diagnosis, "restart", restart_full)
+    monkeypatch.setattr(fdi.diagnosis, "first_alarms_of", lambda stats, h, rows: first_alarms(stats, h))
+    return used
+
+
+def judge_both(monkeypatch, *args, **kw) -> tuple[dict, dict]:
+    """fdi.diagnosis.judge's decisions (incremental restarts) and the full recomputation's."""
+    got = judge(*args, **kw)
+    with monkeypatch.context() as m:
+        used = full_recomputation(m)
+        want = judge(*args, **kw)
+    assert used  # the tests restarted, the old way
+    return got, want
 
 
 def assert_same(a, b, where="decision"):
@@ -119,12 +112,12 @@ def test_restart_equals_the_full_recomputation_on_its_runs(alarming):
         assert [who[b] for b in rows] == [who_ref[b] for b in rows]
 
 
-def test_judge_decides_as_the_full_recomputation(alarming):
+def test_judge_decides_as_the_full_recomputation(alarming, monkeypatch):
     """judge with the incremental restarts: the same Decision per run as the full recomputation,
     bit for bit (alarm times, withdrawn alarms and restarts, the named fault, its size), on runs
     with several withdrawn alarms; the leak that steps in at 6 s is isolated after them as before."""
     out, th, stats = alarming
-    got, want = judge(out, th, stats), judge_reference(out, th, stats)
+    got, want = judge_both(monkeypatch, out, th, stats)
     assert list(got) == list(want) == [0, 1, 2]
     for b in want:
         assert_same(got[b], want[b], f"run {b}")
@@ -135,33 +128,30 @@ def test_judge_decides_as_the_full_recomputation(alarming):
     assert out.t[leak.naming.index] < ONSET_S + 1.0
 
 
-def test_judge_with_a_cut_and_no_sizing_decides_as_before(alarming):
+def test_judge_with_a_cut_and_no_sizing_decides_as_before(alarming, monkeypatch):
     """The tune's way (fdi.scoring.bank_decisions without size): some runs only, each judged up to
     its own last sample: the same decisions as the full recomputation."""
     out, th, stats = alarming
     rows, k_stop = np.array([0, 1]), np.array([6500, 7200])
-    got = judge(out, th, stats, rows=rows, k_stop=k_stop, size=False, pairs=False)
-    want = judge_reference(out, th, stats, rows=rows, k_stop=k_stop, size=False, pairs=False)
+    got, want = judge_both(monkeypatch, out, th, stats, rows=rows, k_stop=k_stop, size=False, pairs=False)
     assert list(got) == list(want)
     for b in want:
         assert_same(got[b], want[b], f"run {b}")
     assert len(want[0].withdrawn) >= 2
 
 
-def test_shown_statistics_are_those_of_the_full_recomputation(alarming):
+def test_shown_statistics_are_those_of_the_full_recomputation(alarming, monkeypatch):
     """What replay writes and plots: the first pass, then from each restart on the statistics
     restarted there, as the full recomputation gave them."""
     out, th, stats = alarming
     diag = diagnose(out, th, 0, stats)
     restarts = np.searchsorted(out.t, diag.likelihood["tests_restarted_s"])
     assert len(restarts) >= 3
-    want = {h: g[0:1].copy() for h, g in stats.items()}
-    for k in restarts:
-        start = np.zeros(out.mean.shape[0], dtype=np.int64)
-        start[0] = k
-        for h, g in restarted(out, th, start).items():
-            want[h][0, k:] = g[0, k:]
     got = shown_statistics(out, th, diag)
+    with monkeypatch.context() as m:
+        used = full_recomputation(m)
+        want = shown_statistics(out, th, diag)
+    assert len(used) == len(restarts)
     assert list(got) == list(want)
     for h in want:
         np.testing.assert_array_equal(got[h], want[h], err_msg=h, strict=True)
