@@ -31,6 +31,8 @@ air law.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
@@ -50,12 +52,23 @@ def spool_positions(u: np.ndarray, params: np.ndarray, dt: float) -> np.ndarray:
     spool = params[:, [P.K_u, P.omega_n, P.zeta]]
     for key in np.unique(spool, axis=0):
         rows = np.flatnonzero((spool == key).all(axis=1))
-        K, w, zeta = key
-        b, a, _ = cont2discrete(([K * w * w], [1.0, 2.0 * zeta * w, w * w]), dt, method="zoh")
-        b = np.ravel(b)
-        zi = lfilter_zi(b, a)[None, :] * u[rows, :1]
-        xs[rows], _ = lfilter(b, a, u[rows], axis=-1, zi=zi)
+        b, a, zi = spool_filter(*map(float, key), float(dt))
+        xs[rows], _ = lfilter(b, a, u[rows], axis=-1, zi=zi[None, :] * u[rows, :1])
     return xs
+
+
+@functools.lru_cache(maxsize=64)
+def spool_filter(K: float, w: float, zeta: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(b, a, zi) of Eq. (15) with gain K [1/V], natural frequency w [rad/s] and damping zeta,
+    discretised exactly for an input held over each sample of ``dt`` [s], and its filter state at
+    rest under a unit input. Cached: every filter run of a plant needs the same one, and scipy's
+    matrix exponential (with the BLAS threads it wakes) cost a bank's short runs more than the filtering."""
+    b, a, _ = cont2discrete(([K * w * w], [1.0, 2.0 * zeta * w, w * w]), dt, method="zoh")
+    b = np.ravel(b)
+    out = (b, a, lfilter_zi(b, a))
+    for x in out:
+        x.setflags(write=False)
+    return out
 
 
 def near_band_edge(x_s: np.ndarray, params: np.ndarray, margin: float) -> np.ndarray:
