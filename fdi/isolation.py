@@ -370,6 +370,10 @@ def judge_alarms(out: FilterOutput, stats: Statistics, k_alarm: np.ndarray, who:
     ka = k_alarm[rows]
     k0 = np.array([onset_index(stats[who[b]][b], int(k_alarm[b]), int(ready[b]), dt, design) for b in rows],
                   dtype=np.int64)
+    inside = k0 < k_stop  # a change estimated at or beyond the stop is never judged (nor run to by a reference)
+    rows, k_stop, ka, k0 = rows[inside], k_stop[inside], ka[inside], k0[inside]
+    if not len(rows):
+        return {}
     k1 = np.full(len(rows), T, dtype=np.int64)
     if horizon_s is not None:
         k1 = np.minimum(T, ka + int(round(horizon_s / dt)) + 1)

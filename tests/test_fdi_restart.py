@@ -174,3 +174,17 @@ def test_restart_with_long_strokes_and_a_given_baseline():
         for h in want:
             np.testing.assert_array_equal(got[h], want[h], err_msg=h, strict=True)
 
+
+
+
+def test_a_change_after_the_cut_is_not_judged(alarming):
+    """The tune's cut (k_stop) just after a withdrawn alarm's window, with the next alarm's change
+    estimated beyond it: that alarm is not judged (the bank's reference ends at the cut: judging it
+    read past the reference's end); the run keeps the alarms withdrawn before the cut."""
+    out, th, stats = alarming
+    first = judge(out, th, stats, rows=np.array([0]), size=False, pairs=False)[0]
+    assert first.restarts[3] + 2 < first.withdrawn[4] - 50  # the next alarm's change lies beyond the cut
+    d = judge(out, th, stats, rows=np.array([0]), k_stop=np.array([first.restarts[3] + 2]), size=False,
+              pairs=False)[0]
+    assert not d.standing.confirmed
+    assert d.withdrawn == first.withdrawn[:4] and d.restarts == first.restarts[:4]
