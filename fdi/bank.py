@@ -65,9 +65,7 @@ class BankDesign:
     #: s: no decision before this long after the first candidate onset: the first tenths of a
     #: second after a step are a transient every hypothesis follows in its own way
     min_evidence_s: float = 0.6
-    #: s: the bank judges an alarm up to this long after its change-time estimate (its start plus
-    #: onset_lead_s), never before its earliest decision: the 1 s isolation target counts from the
-    #: change, and a verdict later than that only holds the tests off what comes next
+    #: s: the bank judges an alarm over at most this long after it (the 1 s isolation target)
     decision_window_s: float = 1.0
     #: s: the several-faults stage runs at most this long after the alarm (one extension and retraction)
     pair_window_s: float = 4.0

@@ -331,7 +331,7 @@ def _withdrawn(out: FilterOutput, th: Thresholds, d: Decision, design: BankDesig
     times = ", ".join(f"{s:.3f}" for s in rec["withdrawn_alarms_s"])
     least = design.min_single_size
     growing = f", that lead still growing over {rec['confirm_persist_s']:g} s," if rec["confirm_persist_s"] else ""
-    note = (f"alarm(s) at t = {times} s withdrawn: within {design.decision_window_s:g} s of each one's change, no fault "
+    note = (f"alarm(s) at t = {times} s withdrawn: in the {design.decision_window_s:g} s after each, no fault "
             f"hypothesis explained the measurements better than the healthy model by {rec['confirm_nats']:.2g} nats"
             f"{growing} with its fault parameter moved by at least {leak_lpm(least['K_int']):.2g} L/min or "
             f"{100 * least['offset']:.2g} % (largest lead {d.standing.lead_max:.1f} nats in the last window)")

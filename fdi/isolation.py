@@ -6,8 +6,7 @@ For a run that alarmed at sample k_a (:mod:`fdi.alarms`):
    earlier, never before the baseline is learnt (:func:`onset_index`);
 2. **bank** (:mod:`fdi.bank`): the healthy reference over [0, k0], then one constrained filter
    per hypothesis from k0 and from later candidate onsets, up to ``min_evidence_s`` after k0 or
-   the alarm, whichever is later, and if undecided over the whole window (``decision_window_s``
-   after the change-time estimate, at least to that first decision: :func:`window_end`);
+   the alarm, whichever is later, and if undecided over the whole window;
 3. **decision** (:func:`decide`): the first sample at which the best fault's evidence
    L_H(k) = sum log N(nu_H,i; 0, S_H,i) leads every other fault by the margin of the stated
    false-isolation level (:func:`margin_for`), causal. The alarm *stands* if the best fault beats
@@ -129,13 +128,6 @@ def onset_index(g: np.ndarray, k_alarm: int, k_ready: int, dt: float, design: Ba
     zeros = np.flatnonzero(g[:k_alarm + 1] <= 0.0)
     k = zeros[-1] + 1 if len(zeros) else 0
     return int(min(k_alarm, max(k_ready, k - int(round(design.onset_lead_s / dt)))))
-
-
-def window_end(k0, kd, horizon_s: float, dt: float, design: BankDesign = DESIGN):
-    """One past the last sample an alarm is judged on (scalars or arrays): ``horizon_s`` [s] after
-    its change-time estimate, the bank's start k0 plus ``onset_lead_s`` (the isolation target counts
-    from the change, not from the CUSUM's crossing), and never before its earliest decision kd."""
-    return np.maximum(k0 + int(round((design.onset_lead_s + horizon_s) / dt)), kd) + 1
 
 
 def max_episodes(n_samples: int, dt: float, design: BankDesign = DESIGN) -> int:
@@ -360,8 +352,8 @@ def judge_alarms(out: FilterOutput, stats: Statistics, k_alarm: np.ndarray, who:
                  reference=None, on_stop=None, design: BankDesign = DESIGN, persist_s: float = 0.0) -> dict:
     """The first alarm of each run of ``rows`` (array), at k_alarm (B,) by the test ``who`` (B,)
     of ``stats`` (fdi.alarms.first_alarms), judged up to ``k_stop`` (one per row): run -> Decision. The stages: (1) the bank over every candidate onset up to its
-    earliest decision; (2) for runs not yet decided, the bank over the whole window (up to
-    :func:`window_end`, ``horizon_s`` after the change-time estimate; None: to the record's end); (3) with ``size``, the named hypothesis alone from
+    earliest decision; (2) for runs not yet decided, the bank over the whole window ([k0, alarm +
+    ``horizon_s``], None: to the record's end); (3) with ``size``, the named hypothesis alone from
     its onset over the window; (4) with ``pairs`` and a confirmed alarm, every single and pair
     restarted after the window up to ``pair_horizon_s`` after the alarm. ``k_ready``: a sample, or
     one per run (B,), before which no onset is estimated. ``reference``: (runs, their reference
@@ -378,13 +370,13 @@ def judge_alarms(out: FilterOutput, stats: Statistics, k_alarm: np.ndarray, who:
     ka = k_alarm[rows]
     k0 = np.array([onset_index(stats[who[b]][b], int(k_alarm[b]), int(ready[b]), dt, design) for b in rows],
                   dtype=np.int64)
-    kd = earliest_decision(ka, k0, dt, design)
     k1 = np.full(len(rows), T, dtype=np.int64)
     if horizon_s is not None:
-        k1 = np.minimum(T, window_end(k0, kd, horizon_s, dt, design))
+        k1 = np.minimum(T, ka + int(round(horizon_s / dt)) + 1)
     k1 = np.minimum(k1, k_stop)
     k1 = np.maximum(k1, k0 + 1)
     ref = run_reference(out, rows, k0 + 1, design) if reference is None else reference_rows(*reference, rows)
+    kd = earliest_decision(ka, k0, dt, design)
     k_a1 = np.minimum(kd + 1, k1)  # stage 1: up to and including the first sample it may decide at
     # the confirmation's own bank (calibration uncertain) when alarms are to be confirmed; then the
     # naming bank's "none" only seeds its later starts

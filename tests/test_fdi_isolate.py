@@ -21,7 +21,7 @@ from fdi.bank import (
 from fdi.faults import FAULTS, MULTI, free_states, hypothesis_name
 from fdi.isolation import (
     Decision, Naming, Standing, decide, decide_pair, earliest_decision, growing, judge_alarms, margin_for, margin_level,
-    onset_index, window_end,
+    onset_index,
 )
 from fdi.states import I_KEXTB, I_KINT
 from fdi.synth import input_signal, lpm, profile, simulate_runs
@@ -226,47 +226,6 @@ def test_onset_estimate_is_never_after_the_alarm():
     assert onset_index(g, 2500, 1500, DT) == 2001 - lead
     assert onset_index(g, 2500, 2001 - lead + 1, DT) == 2001 - lead + 1  # not before the baseline's end
     assert onset_index(g, 1200, 1500, DT) == 1200
-
-
-def test_an_alarm_is_judged_until_one_window_after_its_change_time_estimate():
-    """The bank judges an alarm up to decision_window_s after its change-time estimate (its start
-    k0 plus onset_lead_s), the clock the isolation target runs on, and never stops before its
-    earliest decision: a CUSUM whose last zero lies long before its alarm (a stale estimate) is
-    judged at that one sample, and the tests restart right after it."""
-    lead, win = int(round(DESIGN.onset_lead_s / DT)), int(round(DESIGN.decision_window_s / DT))
-    k0 = np.array([2000, 2000, 2000])
-    k_alarm = np.array([2150, 2550, 3400])  # an early, a late and a stale alarm
-    kd = earliest_decision(k_alarm, k0, DT)
-    assert list(kd) == [2600, 2600, 3400]
-    assert list(window_end(k0, kd, DESIGN.decision_window_s, DT)) == [2000 + lead + win + 1] * 2 + [3401]
-    assert window_end(2000, 2600, 1.0, DT) == 2000 + lead + 1000 + 1
-
-
-def test_each_injected_fault_is_named_within_1s_of_its_onset_and_judged_until_then(bank_runs):
-    """The bank runs' faults (0.5 L/min leaks, +-1 % offsets stepping in at 2 s) under a CUSUM
-    that leaves 0 at the onset and crosses at 2.2 s: each is named right, within 1 s of the
-    onset, and its window ends 1 s after the change-time estimate (1.9 s), not 1 s after the
-    crossing. The same faults under a CUSUM that had last been 0 at 0.8 s (a stale estimate):
-    judged at the crossing alone, so that the tests restart at once."""
-    out, _, rows, _, _, _ = bank_runs
-    t = out.t
-    fresh = np.where(t > ONSET_S, (t - ONSET_S) / 0.2, 0.0)
-    stale = np.where(t > 0.8, (t - 0.8) / 1.4, 0.0)
-    k_on, k_cross = int(round(ONSET_S / DT)), int(round(2.2 / DT))
-    for g, k0 in ((fresh, k_on + 1), (stale, int(round(0.8 / DT)) + 1)):
-        decs = _judge(out, {"K_int": np.tile(g, (len(rows), 1))}, int(0.5 / DT), horizon_s=DESIGN.decision_window_s)
-        for i, (_, _, name, _) in enumerate(CASES):
-            d = decs[i]
-            assert abs(d.standing.alarm - k_cross) <= 1
-            start = k0 - int(round(DESIGN.onset_lead_s / DT))
-            assert d.naming.k0 == start
-            kd = earliest_decision(d.standing.alarm, start, DT)
-            assert d.standing.window_end == window_end(start, kd, DESIGN.decision_window_s, DT)
-            if g is fresh:
-                assert d.standing.window_end == start + 1101
-                assert d.naming.hypothesis == name and d.naming.index - k_on <= 1000
-            else:
-                assert d.standing.window_end == d.standing.alarm + 1
 
 
 def test_compiled_cusum_and_vectorised_nis_run_equal_the_loops():
@@ -828,8 +787,7 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     too sensitive (no drift, h / 20) alarm on a healthy run again and again (at about 1.7, 3.0,
     4.1, 5.1, 6.1 and 7.9 s); the bank withdraws
     every alarm (no fault beats the healthy hypothesis by Thresholds.confirm_nats), the tests
-    restart after each window (1 s after the alarm's change-time estimate, at least at the
-    bank's first decision) and the run is "healthy", its note listing the withdrawn alarms.
+    restart after each window and the run is "healthy", its note listing the withdrawn alarms.
     The same machine with a 1 L/min K_extA stepping in at 6 s: the alarms before 6 s are
     withdrawn (each restart re-learns the baseline), the one at the onset stands, confirmed by
     the data after 6 s, and names K_extA. With confirm_nats = 0 (every
@@ -854,10 +812,7 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     assert healthy.status == "healthy"
     withdrawn = healthy.likelihood["withdrawn_alarms_s"]
     assert len(withdrawn) >= 2 and withdrawn == sorted(withdrawn)
-    restarts = healthy.likelihood["tests_restarted_s"]
-    # the last alarm's restart falls after the record's end and is not listed
-    assert len(withdrawn) - 1 <= len(restarts) <= len(withdrawn) and all(r > a for a, r in zip(withdrawn, restarts))
-    assert all(b > r for r, b in zip(restarts, withdrawn[1:]))  # each next alarm after the restart
+    assert all(b - a >= DESIGN.decision_window_s for a, b in zip(withdrawn, withdrawn[1:]))  # restarted after each window
     assert healthy.detection_time_s is None and "withdrawn" in healthy.note
     faulty = diagnose(out, th, 1, stats)
     assert faulty.status == "fault" and faulty.isolated == ["K_extA"]
