@@ -86,6 +86,14 @@ def format_value(v: float, unit: str) -> str:
     return f"{v:.4g} {unit}".strip()
 
 
+#: m^2: the seal terms' range, from a seal's contact too small to matter (1e-8 m^2 at 10 MPa is 0.1 N)
+#: to one that would hold the piston's own area (A_A is 5e-3 m^2 on the default plant).
+K_SEAL_LO, K_SEAL_HI = 1e-8, 1e-3
+#: 1: the opening limit's range, fraction of travel: a port uncovered within 2 % of travel, to beyond
+#: full travel (|x_s| <= 1 at 10 V; above 1 the limit is never reached: the nominal valve).
+X_OPEN_LO, X_OPEN_HI = 0.02, 1.2
+
+
 def extra_inertia(params: np.ndarray, J: np.ndarray) -> None:
     """Add J [kg m^2] to the boom's inertia about its joint through the boom length L_B
     (J_B = m_B L_B^2 / 12, Eq. (16)): the one parameter that changes the inertia and nothing else."""
@@ -133,12 +141,17 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             probe={"lap": 0.02},
         ),
         Hypothesis(
-            "flow_saturation", "valve flow saturation",
-            (Free("Q_sat", Q_N * 0.05, Q_N * 2.5, True, "L/min", "flow limit per notch"),),
-            "Each metering notch passes at most Q_sat, e.g. a pilot-stage or port limit.",
-            "velocity and pressures flatten at high flow demand (large spool opening)",
-            starts=tuple({"Q_sat": Q_N * a} for a in (0.2, 0.4, 0.7, 1.0, 1.5)),
-            probe={"Q_sat": Q_N * 0.6},
+            "flow_saturation", "valve flow saturation (a notch fully open beyond an opening)",
+            (Free("x_open", X_OPEN_LO, X_OPEN_HI, True, "%", "opening at which a notch is fully open"),),
+            "A metering notch stops growing in area once the spool has uncovered its whole port: beyond that "
+            "opening the valve is a fixed orifice, its flow still rising with the square root of the pressure drop "
+            "(effective opening min(|x_s|, x_open) in Eqs. (10)-(12)).",
+            "velocity and pressures flatten at large spool openings (high flow demand); the flow still follows "
+            "the load pressure there",
+            starts=tuple({"x_open": a} for a in (0.2, 0.35, 0.5, 0.7, 0.9)),
+            probe={"x_open": 0.6},
+            alike="a port or line restriction in series with the valve (its flow also saturates at a fixed area); "
+                  "a pilot stage that caps the flow itself (sam's Q_sat) flattens the flow against the pressure drop too",
         ),
         Hypothesis(
             "supply_droop", "supply pressure droop with flow (pump limit, relief, accumulator)",
@@ -157,12 +170,15 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             probe={"K_bypass": 2e-12},
         ),
         Hypothesis(
-            "pressure_friction", "pressure-dependent seal friction",
-            (Free("k_fric_p", 1e-8, 1e-3, True, "m^2", "seal friction per pressure (F_C + k (p_A + p_B))"),),
-            "Seals press harder at high chamber pressure: Coulomb/static friction grows with p_A + p_B.",
-            "force balance off at high pressure level, worst at stick-slip and reversals",
-            starts=tuple({"k_fric_p": k} for k in (1e-6, 1e-5, 5e-5, 2e-4)),
-            probe={"k_fric_p": 5e-5},
+            "pressure_friction", "seal friction rising with the pressures the seals hold",
+            (Free("k_fric_dp", K_SEAL_LO, K_SEAL_HI, True, "m^2", "piston seal, per pressure difference |p_A - p_B|"),
+             Free("k_fric_rod", K_SEAL_LO, K_SEAL_HI, True, "m^2", "rod seal, per rod-side pressure p_B")),
+            "A seal's lip is pressed onto its surface by the pressure it seals: the piston seal's friction grows "
+            "with the pressure difference across the piston, the rod seal's with the rod-side pressure "
+            "(F_C + k_piston |p_A - p_B| + k_rod p_B, and F_S alike).",
+            "force balance off where the load pressure is high, worst at stick-slip and reversals",
+            starts=tuple({"k_fric_dp": k, "k_fric_rod": k * r} for k in (1e-5, 5e-5, 2e-4) for r in (0.1, 1.0)),
+            probe={"k_fric_dp": 5e-5, "k_fric_rod": 2.5e-5},
         ),
         Hypothesis(
             "friction_level", "changed Coulomb / Stribeck / viscous friction",

@@ -26,7 +26,7 @@ from sam import P, S, simulate_batch
 from sam.measurement import first_order_lag, time_delay
 from sam.capability import held_state, jacobian
 from sam.dynamics import N_DERIVED, N_STATES, derive, rhs, stroke_ends
-from sam.friction import seal_loaded, stribeck
+from sam.friction import seal_loaded, seal_pressure_rise, stribeck
 
 
 @numba.njit(cache=True)
@@ -182,8 +182,10 @@ class SegmentSimulator:
         # bristle deflection at its steady state for the segment's velocity
         pr = np.repeat(params, len(st), axis=0)
         v = x0[:, S.v]
-        FC = seal_loaded(pr[:, P.F_C], x0[:, S.p_A], x0[:, S.p_B], pr[:, P.k_fric_p])
-        FS = seal_loaded(pr[:, P.F_S], x0[:, S.p_A], x0[:, S.p_B], pr[:, P.k_fric_p])
+        pA0, pB0 = x0[:, S.p_A], x0[:, S.p_B]
+        rise = seal_pressure_rise(pA0, pB0, pr[:, P.k_fric_dp], pr[:, P.k_fric_rod])  # the model's friction levels
+        FC = seal_loaded(pr[:, P.F_C] + rise, pA0, pB0, pr[:, P.k_fric_p])
+        FS = seal_loaded(pr[:, P.F_S] + rise, pA0, pB0, pr[:, P.k_fric_p])
         g = stribeck(v, FC, FS, pr[:, P.v_s])
         x0[:, S.z] = np.sign(v) * g / pr[:, P.sigma_0]
         # where the piston is (nearly) still the bristles hold whatever the force balance needs

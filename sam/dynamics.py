@@ -27,7 +27,7 @@ import numba
 import numpy as np
 
 from .constants import P_CAVITATION
-from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, stribeck
+from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, seal_pressure_rise, stribeck
 from .geometry import (
     cos_joint_angle, load_torque_cs, quarter_turn_cos_sin, stroke_end, torque_arm_cs, torque_arm_slope_cs,
     total_inertia,
@@ -38,6 +38,7 @@ from .hydraulics import (
 from . import views
 from .params import P
 from .simd import float_type, quot, sqrt, where
+from .variant import LEAK_COLS, kernel_variant  # noqa: F401  (the step's API: which compiled variant a batch needs)
 
 # error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
 jit = numba.njit(cache=True, error_model="numpy")
@@ -175,8 +176,8 @@ def rates(y, u, p, d, j, leaks=True, effects=True, f=np.float64):
     leak faults are Eqs. (41)-(43); the optional effects of :class:`sam.params.Effects` enter
     through the hydraulics and friction functions; Eq. (7)'s R-dot term where the plant's
     ``[equations]`` keep it. ``leaks=False`` promises K_int = K_extA = K_extB = K_bypass = 0 and
-    ``effects=False`` lap >= 0, R_supply = 0, Q_sat = inf, air_fraction = 0 and no R-dot term
-    (:func:`kernel_variant`): the same numbers without the arithmetic that
+    ``effects=False`` lap >= 0, R_supply = 0, Q_sat = x_open = inf, air_fraction = 0, no seal terms
+    k_fric_dp, k_fric_rod and no R-dot term (:func:`kernel_variant`): the same numbers without the arithmetic that
     would give zeros. ``f`` is the float type of the arithmetic.
     """
     p_A, p_B, x_s, dx_s, x, v, z = y
@@ -188,7 +189,8 @@ def rates(y, u, p, d, j, leaks=True, effects=True, f=np.float64):
     # Hydraulics, Eqs. (8)-(14), (41)-(43)
     if effects:
         Q_A, Q_B, G_A, G_B = valve_flows(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT, K_leak_PA, K_leak_AT,
-                                         K_leak_PB, K_leak_BT, leak_band, lap, p[P.R_supply, j], p[P.Q_sat, j], f)
+                                         K_leak_PB, K_leak_BT, leak_band, lap, p[P.R_supply, j], p[P.Q_sat, j],
+                                         p[P.x_open, j], f)
     else:
         Q_A, Q_B, G_A, G_B = valve_flows_ideal(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT, K_leak_PA,
                                                K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, f)
@@ -225,10 +227,12 @@ def rates(y, u, p, d, j, leaks=True, effects=True, f=np.float64):
     )
     F_ext = tau * inv_r + p[P.F_d, j]
 
-    # LuGre friction, Eq. (17)
-    k_fric_p, sigma_0 = p[P.k_fric_p, j], p[P.sigma_0, j]
-    g = stribeck(v, seal_loaded(p[P.F_C, j], p_A, p_B, k_fric_p, f), seal_loaded(p[P.F_S, j], p_A, p_B, k_fric_p, f),
-                 p[P.v_s, j])
+    # LuGre friction, Eq. (17), its levels raised by the pressures on the seals (Effects; F + 0 is F)
+    F_C, F_S, k_fric_p, sigma_0 = p[P.F_C, j], p[P.F_S, j], p[P.k_fric_p, j], p[P.sigma_0, j]
+    if effects:
+        rise = seal_pressure_rise(p_A, p_B, p[P.k_fric_dp, j], p[P.k_fric_rod, j], f)
+        F_C, F_S = F_C + rise, F_S + rise
+    g = stribeck(v, seal_loaded(F_C, p_A, p_B, k_fric_p, f), seal_loaded(F_S, p_A, p_B, k_fric_p, f), p[P.v_s, j])
     dz = bristle_rate(v, z, g, sigma_0)
     F_mu = lugre_force(v, z, dz, sigma_0, d[D.sigma_1_r, j] * inv_r, p[P.b, j])
 
@@ -537,25 +541,6 @@ def step_lanes(s, u, p, d, dt, flags, n, substeps=1, scheme=0, leaks=True, effec
             _heun_lanes(s, u, p, d, h, flags, n, leaks, effects)
         else:
             _rk4_lanes(s, u, p, d, h, flags, n)
-
-
-#: Columns whose non-zero values need the ``leaks`` variant of the step, and those whose
-#: values other than neutral need the ``effects`` variant (:func:`kernel_variant`).
-LEAK_COLS = np.array([P.K_int, P.K_extA, P.K_extB, P.K_bypass], dtype=np.int64)
-
-
-@jit
-def kernel_variant(params):
-    """(leaks, effects) of :func:`step_lanes` for a batch of parameter rows (n, len(P)): whether
-    any row has a leak path (K_int, K_extA, K_extB, K_bypass non-zero), and whether any has an
-    underlapped valve, supply droop, a flow limit, entrained air or Eq. (7)'s R-dot term."""
-    leaks, effects = False, False
-    for i in range(params.shape[0]):
-        for c in LEAK_COLS:
-            leaks |= params[i, c] != 0.0
-        effects |= ((params[i, P.lap] < 0.0) | (params[i, P.R_supply] != 0.0) | (params[i, P.Q_sat] != np.inf)
-                    | (params[i, P.air_fraction] != 0.0) | (params[i, P.arm_rate_torque] != 0.0))
-    return leaks, effects
 
 
 @jit

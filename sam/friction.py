@@ -29,6 +29,19 @@ def seal_loaded(F, p_A, p_B, k_fric_p, f=np.float64):
 
 
 @jit
+def seal_pressure_rise(p_A, p_B, k_fric_dp, k_fric_rod, f=np.float64):
+    """The rise [N] of the friction levels F_C, F_S of Eq. (17) with the pressures the seals hold
+    (an optional effect; docs/model.md, "Effects"): ``k_fric_dp |p_A - p_B| + k_fric_rod max(p_B, 0)``.
+
+    A reciprocating seal's lip is pressed onto its counter-surface by the pressure difference it
+    seals, so its friction grows about linearly with it: the piston seal holds the difference
+    between the chambers, the rod seal the rod-side pressure against the atmosphere (gauge; below
+    atmospheric the lip is not pressed harder). k_fric_dp and k_fric_rod [m^2] are the effective
+    areas of that contact; 0 gives 0 (then F + 0 is F to the last bit)."""
+    return k_fric_dp * np.abs(p_A - p_B) + k_fric_rod * np.maximum(p_B, f(0.0))
+
+
+@jit
 def bristle_rate(v, z, g, sigma_0):
     """dz/dt [m/s] of the bristle deflection z: v - sigma_0 |v| z / g(v) (Eq. (19), 7th row)."""
     return v - quot(sigma_0 * np.abs(v) * z, g)

@@ -112,6 +112,16 @@ def edge_openings(x_s, offset, lap, f=np.float64):
 
 
 @jit
+def limited_openings(x_s, offset, lap, x_open, f=np.float64):
+    """:func:`edge_openings`, each at most ``x_open`` (fraction of travel): the valve's opening
+    limit. A notch's area stops growing once the spool has uncovered its whole port, so beyond
+    x_open the edge is a fixed orifice whose flow still rises with sqrt(dp) (a flow limit,
+    ``Q_sat``, would not). ``x_open = inf`` gives :func:`edge_openings` to the last bit."""
+    a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap, f)
+    return min(a_PA_BT, x_open), min(a_PB_AT, x_open)
+
+
+@jit
 def null_leakage(p_chamber, p_S, p_T, K_leak_in, K_leak_out):
     """Eqs. (13)-(14): laminar null leakage [m^3/s] into a chamber, from the supply and out to
     the tank. It flows while the spool is near centre, ``|x_s + offset| < leak_band`` (the paper
@@ -121,13 +131,15 @@ def null_leakage(p_chamber, p_S, p_T, K_leak_in, K_leak_out):
 
 @jit_inline
 def valve_flows(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
-                K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, R_supply, Q_sat, f=np.float64):
+                K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, R_supply, Q_sat, x_open=math.inf,
+                f=np.float64):
     """Eqs. (10)-(14): (Q_A, Q_B, G_A, G_B), the valve flows [m^3/s] into chambers A and B and,
     per chamber, the sum of the chord conductances q / dp [m^3/(s Pa)] of the valve paths that
     join it to the supply and the tank (the open metering edges, :func:`orifice_flow_conductance`,
-    and the laminar null leakage, :func:`null_leakage`). Every edge is evaluated (an underlapped
-    spool opens all four); :func:`valve_flows_ideal` is the same for a valve that opens at most two."""
-    a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap, f)
+    each opened at most ``x_open``: :func:`limited_openings`, and the laminar null leakage,
+    :func:`null_leakage`). Every edge is evaluated (an underlapped spool opens all four);
+    :func:`valve_flows_ideal` is the same for a valve that opens at most two."""
+    a_PA_BT, a_PB_AT = limited_openings(x_s, offset, lap, x_open, f)
     q_PA, g_PA = orifice_flow_conductance(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat, f)
     q_AT, g_AT = _tank_edge(K_AT * a_PB_AT, p_A - p_T, Q_sat, f)
     q_PB, g_PB = orifice_flow_conductance(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat, f)
@@ -146,9 +158,9 @@ def _tank_edge(k, dp, Q_sat, f):
 @jit
 def valve_flows_ideal(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
                       K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, f=np.float64):
-    """:func:`valve_flows` of a valve without underlap, supply droop or flow limit (lap >= 0,
-    R_supply = 0, Q_sat = inf; the paper's valve): at most one pair of edges is open, so the pair
-    is chosen first, by the sign of the opening, and two square roots serve where four would.
+    """:func:`valve_flows` of a valve without underlap, supply droop, flow or opening limit (lap >= 0,
+    R_supply = 0, Q_sat = inf, x_open = inf; the paper's valve): at most one pair of edges is open, so
+    the pair is chosen first, by the sign of the opening, and two square roots serve where four would.
     The same numbers to the last bit."""
     a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap, f)
     extend = a_PA_BT > f(0.0)  # P->A and B->T open (else P->B and A->T, or none)
@@ -183,9 +195,9 @@ def leak_conductance(q, dp, K, f=np.float64):
 
 
 @jit
-def supply_flow(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat):
+def supply_flow(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat, x_open=math.inf):
     """Flow drawn from the supply through P->A and P->B [m^3/s] (for the droop of p_S)."""
-    a_PA_BT, a_PB_AT = edge_openings(x_s, offset, lap)
+    a_PA_BT, a_PB_AT = limited_openings(x_s, offset, lap, x_open)
     q_PA = orifice_flow(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat)
     q_PB = orifice_flow(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat)
     return q_PA + q_PB
@@ -249,14 +261,15 @@ def supply_flow_array(x_s, p_A, p_B, p):
 
     K_PA = flow_coefficient(p[P.Q_N_PA], p[P.dp_N_PA])
     K_PB = flow_coefficient(p[P.Q_N_PB], p[P.dp_N_PB])
-    return _supply_flow_loop(x_s, p_A, p_B, p[P.offset], p[P.p_S], K_PA, K_PB, p[P.lap], p[P.R_supply], p[P.Q_sat])
+    return _supply_flow_loop(x_s, p_A, p_B, p[P.offset], p[P.p_S], K_PA, K_PB, p[P.lap], p[P.R_supply], p[P.Q_sat],
+                             p[P.x_open])
 
 
 @jit
-def _supply_flow_loop(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat):
+def _supply_flow_loop(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat, x_open):
     out = np.empty(x_s.shape[0])
     for k in range(x_s.shape[0]):
-        out[k] = supply_flow(x_s[k], p_A[k], p_B[k], offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat)
+        out[k] = supply_flow(x_s[k], p_A[k], p_B[k], offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat, x_open)
     return out
 
 

@@ -107,6 +107,9 @@ class Effects:
     K_bypass: float = 0.0  #: m^3/(s Pa), laminar cylinder bypass leakage A->B
     C_hose: float = 0.0  #: m^3/Pa, extra hose compliance on each chamber
     k_fric_p: float = 0.0  #: m^2, pressure-dependent Coulomb friction: F_C + k_fric_p (p_A + p_B)
+    k_fric_dp: float = 0.0  #: m^2, piston-seal friction per pressure difference across it: + k_fric_dp |p_A - p_B|
+    k_fric_rod: float = 0.0  #: m^2, rod-seal friction per rod-side pressure: + k_fric_rod p_B
+    x_open: float = math.inf  #: 1, spool opening (fraction of travel) beyond which a notch's area stops growing
 
 
 @dataclass(frozen=True)

@@ -34,13 +34,15 @@ _POSITIVE = {
     "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT", "dp_N_PA", "dp_N_AT", "dp_N_PB", "dp_N_BT",
     "leak_band", "K_u", "omega_n", "zeta", "p_S", "D_piston", "D_rod", "x_max",
     "V_0A", "V_0B", "B_eff", "F_C", "F_S", "v_s", "sigma_0", "L_1", "L_2", "L_3", "L",
-    "L_B", "m_B", "theta_max", "Q_sat",
+    "L_B", "m_B", "theta_max", "Q_sat", "x_open",
 }
 #: Parameters that must be >= 0.
 _NON_NEGATIVE = {
     "K_leak_PA", "K_leak_AT", "K_leak_PB", "K_leak_BT", "b", "r_B", "m_L", "m_R",
-    "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p",
+    "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p", "k_fric_dp", "k_fric_rod",
 }
+#: Limits whose neutral value is inf (no limit): the only parameters a plant file may give as inf.
+_UNLIMITED = {"Q_sat", "x_open"}
 #: The table of uncertain parameters, and the groups whose parameters it may name: a machine's
 #: physical values (the spool offset is a fault input, estimated by the FDI, so it is not among them).
 UNCERTAIN = "uncertain"
@@ -224,7 +226,7 @@ def _check_value(source, group: str, key: str, value: Any) -> float | bool:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise UserError(f"{where(source, field)}: expected a number in SI units, got {value!r}")
     value = float(value)
-    if math.isnan(value) or (math.isinf(value) and key != "Q_sat"):
+    if math.isnan(value) or (math.isinf(value) and key not in _UNLIMITED):
         raise UserError(f"{where(source, field)}: must be finite, got {value}")
     if key in _POSITIVE and not value > 0:
         raise UserError(f"{where(source, field)}: must be > 0, got {value}")
