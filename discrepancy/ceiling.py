@@ -12,9 +12,8 @@ physics), but bounded; an excess far above what clean recordings show means that
 calibration cannot absorb is still in the recording, even when no single library effect passed
 every acceptance test (:func:`short_of_ceiling`).
 
-The noise sigma of each signal is read from the recording itself: the median absolute second
-difference, which white noise of sd sigma sets to 0.6745 sqrt(6) sigma and a smooth signal
-sampled at 1 kHz barely moves.
+The noise sigma of each signal is read from the recording itself (:func:`sam.white_noise_std`:
+the median absolute second difference, which a smooth signal sampled at 1 kHz barely moves).
 """
 
 from __future__ import annotations
@@ -23,20 +22,9 @@ import math
 
 import numpy as np
 
+from sam import white_noise_std
+
 from .simulation import SIGNALS, SegmentSimulator
-
-#: MAD of a normal variable over its sd, and the sd of a second difference of white noise over its sd
-_MAD_NORMAL = 0.6745
-_D2_GAIN = math.sqrt(6.0)
-
-
-def noise_sd(y: np.ndarray) -> float:
-    """Sd of the white noise on ``y`` (its unit), from the median absolute second difference."""
-    d2 = np.diff(np.asarray(y, float)[np.isfinite(y)], 2)
-    if d2.size == 0:
-        return 0.0
-    return float(np.median(np.abs(d2)) / (_MAD_NORMAL * _D2_GAIN))
-
 
 def noise_ceiling(sim: SegmentSimulator, part: str = "held") -> dict[str, float]:
     """Per-signal fit % [%] that a model exact up to the noise would reach on ``part`` of ``sim``'s
@@ -46,7 +34,7 @@ def noise_ceiling(sim: SegmentSimulator, part: str = "held") -> dict[str, float]
     for k in SIGNALS:
         y = sim.meas[k][segs][sim.mask[k][segs]]
         den = float(np.linalg.norm(y - y.mean())) if y.size else 0.0
-        sd = noise_sd(sim.data.y[k][sim.data.scored[k]])
+        sd = white_noise_std(sim.data.y[k][sim.data.scored[k]])
         out[k] = 100.0 * (1.0 - math.sqrt(y.size) * sd / den) if den > 0 else float("nan")
     out["mean"] = float(np.nanmean([out[k] for k in SIGNALS]))
     return out
@@ -81,4 +69,4 @@ def closest_library_effect(cands, ceiling_mean: float, limit: float, bic_strong:
     return min(ok, key=lambda c: c.delta_bic_held) if ok else None
 
 
-__all__ = ["closest_library_effect", "excess", "noise_ceiling", "noise_sd", "short_of_ceiling"]
+__all__ = ["closest_library_effect", "excess", "noise_ceiling", "short_of_ceiling"]

@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sam import P, Plant, Recording, UserError, initial_state, simulate_batch, stroke_ends
+from sam import P, Plant, Recording, UserError, initial_state, simulate_batch, stroke_ends, white_noise_std
 from sam.geometry import joint_angle, piston_position
 from sam.measurement import ENCODER_RESOLUTION_RAD
 
@@ -116,19 +116,6 @@ def _angles(inp_pos: np.ndarray, pos_kind: int, params: np.ndarray) -> np.ndarra
     if pos_kind == POS_THETA:
         return inp_pos
     return joint_angle(inp_pos, params[P.L_1], params[P.L_2], params[P.L_3])
-
-
-def white_noise_std(a: np.ndarray) -> float:
-    """Std of the white noise on a uniformly sampled signal (its unit), from its second
-    differences: white noise of std s gives y[k+1] - 2 y[k] + y[k-1] a std of s sqrt(6), and
-    their median absolute value (x 1.4826, the normal distribution's MAD factor) ignores the
-    samples where the signal itself bends (steps, transients), as long as those are fewer than
-    half. NaN samples are skipped; nan when fewer than 10 differences are left."""
-    d2 = np.diff(np.asarray(a, dtype=float), 2)
-    d2 = d2[np.isfinite(d2)]
-    if len(d2) < 10:
-        return float("nan")
-    return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))
 
 
 def recording_sensors(sensors: Sensors, inp: FilterInput, checks: InputChecks = CHECKS) -> Sensors:

@@ -19,7 +19,8 @@ Public face:
   filter's sigma points): :func:`lane_blocks`, :func:`block_lane`, :func:`derived_parts`,
   :func:`step_blocks`;
 * simulation: :func:`simulate_batch`, :func:`initial_state`, :func:`run_scenario`;
-* recordings: :class:`Recording`, :func:`read_recording`, :func:`write_recording`.
+* recordings: :class:`Recording`, :func:`read_recording`, :func:`write_recording`, and the white
+  noise on a recorded signal, :func:`white_noise_std`.
 """
 
 from .constants import DT_DEFAULT, LEAK_REFERENCE_DP, LPM
@@ -30,7 +31,7 @@ from .params import (
     Supply, Uncertain, Valve,
 )
 from .plant import default_plant_path, load_plant
-from .recording import Recording, RecordingError, read_recording, write_recording
+from .recording import Recording, RecordingError, read_recording, white_noise_std, write_recording
 from .row_step import block_lane, derived_parts, lane_blocks, step_batch, step_batch_inplace, step_blocks
 from .scenario import Scenario, load_scenario, run_scenario
 from .simulate import BatchResult, initial_state, simulate_batch
@@ -41,6 +42,6 @@ __all__ = [
     "rhs", "step_batch", "step_batch_inplace", "block_lane", "derived_parts", "lane_blocks", "step_blocks",
     "stroke_ends", "UserError", "P", "PARAM_NAMES", "Boom", "Cylinder", "Disturbances",
     "Effects", "Faults", "Fluid", "Friction", "Plant", "Supply", "Uncertain", "Valve", "default_plant_path",
-    "load_plant", "Recording", "RecordingError", "read_recording", "write_recording",
+    "load_plant", "Recording", "RecordingError", "read_recording", "white_noise_std", "write_recording",
     "BatchResult", "initial_state", "simulate_batch", "Scenario", "load_scenario", "run_scenario",
 ]

@@ -10,7 +10,8 @@ import pytest
 
 import rig
 import sam
-from discrepancy.ceiling import closest_library_effect, excess, noise_ceiling, noise_sd, short_of_ceiling
+from discrepancy.ceiling import closest_library_effect, excess, noise_ceiling, short_of_ceiling
+from sam import white_noise_std
 from discrepancy.data import prepare
 from discrepancy.settings import Settings
 from discrepancy.simulation import SegmentSimulator
@@ -23,9 +24,9 @@ def test_noise_sd_reads_white_noise_under_a_smooth_signal():
     rng = np.random.default_rng(3)
     t = np.arange(20000) * 1e-3
     y = 3e6 * np.sin(2 * np.pi * 2.0 * t) + rng.normal(0.0, 2e4, t.size)
-    assert noise_sd(y) == pytest.approx(2e4, rel=0.03)
+    assert white_noise_std(y) == pytest.approx(2e4, rel=0.03)
     # the swing alone: its second difference is at most 3 MPa (4 pi)^2 (1 ms)^2 = 0.47 kPa, 2 % of the noise
-    assert noise_sd(3e6 * np.sin(2 * np.pi * 2.0 * t)) < 0.0125 * 2e4
+    assert white_noise_std(3e6 * np.sin(2 * np.pi * 2.0 * t)) < 0.0125 * 2e4
 
 
 def test_noise_ceiling_is_the_fit_of_a_model_exact_up_to_the_noise():
