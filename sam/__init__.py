@@ -31,7 +31,8 @@ from .params import (
     Supply, Uncertain, Valve,
 )
 from .plant import default_plant_path, load_plant
-from .recording import Recording, RecordingError, read_recording, white_noise_std, write_recording
+from .measurement import white_noise_std
+from .recording import Recording, RecordingError, read_recording, write_recording
 from .row_step import block_lane, derived_parts, lane_blocks, step_batch, step_batch_inplace, step_blocks
 from .scenario import Scenario, load_scenario, run_scenario
 from .simulate import BatchResult, initial_state, simulate_batch

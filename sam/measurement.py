@@ -5,7 +5,8 @@ angle encoder of 0.007 deg/pulse on the boom joint. The piston position x is
 computed from the quantised angle through Eq. (3), as a logger would.
 
 Optional sensor effects (each seeded): white pressure noise (default 20 kPa),
-encoder quantisation, a first-order lag and a pure time delay.
+encoder quantisation, a first-order lag and a pure time delay; and the reverse, the white noise
+read back off a recorded signal (:func:`white_noise_std`).
 """
 
 from __future__ import annotations
@@ -101,3 +102,16 @@ def supply_pressure(states: dict[str, np.ndarray], params: np.ndarray) -> np.nda
         return np.full_like(states["p_A"], params[P.p_S])
     q = supply_flow_array(states["x_s"], states["p_A"], states["p_B"], params)
     return params[P.p_S] - params[P.R_supply] * q
+
+
+def white_noise_std(a: np.ndarray) -> float:
+    """Std of the white noise on a uniformly sampled signal (its unit), from its second
+    differences: white noise of std s gives y[k+1] - 2 y[k] + y[k-1] a std of s sqrt(6), and
+    their median absolute value (x 1.4826, the normal distribution's MAD factor) ignores the
+    samples where the signal itself bends (steps, transients), as long as those are fewer than
+    half. NaN samples are skipped; nan when fewer than 10 differences are left."""
+    d2 = np.diff(np.asarray(a, dtype=float), 2)
+    d2 = d2[np.isfinite(d2)]
+    if len(d2) < 10:
+        return float("nan")
+    return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))

@@ -119,19 +119,6 @@ class Recording:
 # ---------------------------------------------------------------- reading
 
 
-def white_noise_std(a: np.ndarray) -> float:
-    """Std of the white noise on a uniformly sampled signal (its unit), from its second
-    differences: white noise of std s gives y[k+1] - 2 y[k] + y[k-1] a std of s sqrt(6), and
-    their median absolute value (x 1.4826, the normal distribution's MAD factor) ignores the
-    samples where the signal itself bends (steps, transients), as long as those are fewer than
-    half. NaN samples are skipped; nan when fewer than 10 differences are left."""
-    d2 = np.diff(np.asarray(a, dtype=float), 2)
-    d2 = d2[np.isfinite(d2)]
-    if len(d2) < 10:
-        return float("nan")
-    return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))
-
-
 def read_recording(path: str | Path) -> Recording:
     """Read a recording from a .csv or .mat file, checking it thoroughly.
 
