@@ -1,7 +1,7 @@
 """SECOND held-out set for the mismatch diagnosis: never used to tune it.
 
-Created before the session-6 changes to the acceptance rule, and run once before
-and once after them, as a check that the changes generalise. The cases are the
+Made before a change to the acceptance rule and run once before and once after
+it, as a check that the change generalised (docs/mismatch.md). The cases are the
 same physics as the development set (:mod:`discrepancy.cases`) at other
 magnitudes, in other pairs, and with other seeds (default seed 3; the dev set
 uses 1, the first held-out set 2). Everything is produced by ``sam`` through

@@ -89,7 +89,7 @@ class UnknownInputs:
 
 
 #: The filter settings this route was measured with, spelled out so that it does not follow the FDI
-#: defaults (tuned for fault detection, and changed between sessions): no calibration states (the plant
+#: defaults (tuned for fault detection, and free to change for it): no calibration states (the plant
 #: vector passed in is already calibrated; a random-walk notch flow or B_eff would trade off with Q_dA,
 #: Q_dB), plain mean projection of the (pinned) leak states, and the 2e-5 rad encoder noise floor.
 # The model's form taken as exact (no FormNoise): the route exists to find where it errs, and
