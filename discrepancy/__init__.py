@@ -9,6 +9,7 @@ the model) by signature, BIC and held-out validation against the model's own err
 and design the test that would settle a look-alike; write report.md / report.json / figures.
 """
 
+import sam.jitcache  # noqa: F401  (numba's cache keyed by the project's sources: sam/jitcache.py)
 from .diagnose import Report, diagnose
 from .library import Hypothesis, library
 from .settings import Settings

@@ -15,6 +15,7 @@ Carlo runs and :func:`analyse` turns those into rates with intervals; :mod:`fdi.
 :class:`Thresholds` from the sensitivity studies.
 """
 
+import sam.jitcache  # noqa: F401  (numba's cache keyed by the project's sources: sam/jitcache.py)
 from .bank import BankDesign
 from .config import (
     CalibrationStates, Constraints, FilterConfig, FormNoise, Guards, Sensors, SigmaPoints, StopRules,

@@ -17,6 +17,7 @@ Public face:
   :func:`initial_state`, :func:`derivatives`, :func:`rk4_step`.
 """
 
+import sam.jitcache  # noqa: F401  (numba's cache keyed by the project's sources: sam/jitcache.py)
 from .integrate import rk4_step
 from .layout import C, R
 from .machine import build

@@ -23,6 +23,7 @@ Public face:
   noise on a recorded signal, :func:`white_noise_std`.
 """
 
+from . import jitcache  # noqa: F401  (before the first cached kernel is compiled)
 from .constants import DT_DEFAULT, LEAK_REFERENCE_DP, LPM
 from .dynamics import D, N_SCRATCH, N_STATES, SCHEMES, S, Scheme, derive, euler_step, rhs, step, stroke_ends
 from .errors import UserError
