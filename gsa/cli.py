@@ -10,14 +10,17 @@ import time
 import warnings
 from pathlib import Path
 
-from gsa import reconstruct_cli
+from chunkstore import CHUNK_DIR, MANIFEST, SUMS, FolderLock, StoreError
+from gsa import ESTIMATORS, reconstruct_cli, resources, run, saltelli_design
+from gsa.errors import GSAError
+from gsa.report import report_files, write_report
+from gsa.sam_model import SamModel
+from gsa.studies import MIN_BOOTSTRAP, load_study
 from sam.errors import UserError, output_folder
 from sam.options import integer
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    from gsa.studies import MIN_BOOTSTRAP
-
     gsa = sub.add_parser("gsa", help="Sobol' global sensitivity analysis",
                          description="Sobol' global sensitivity analysis of a study file.")
     gsa_sub = gsa.add_subparsers(dest="gsa_command", metavar="SUBCOMMAND", required=True)
@@ -51,9 +54,6 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from chunkstore import StoreError
-    from gsa.errors import GSAError
-
     try:
         return _run(args)
     except (GSAError, StoreError) as exc:
@@ -61,12 +61,6 @@ def run_command(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from chunkstore import CHUNK_DIR, MANIFEST, SUMS, FolderLock
-    from gsa import ESTIMATORS, resources, run, saltelli_design
-    from gsa.report import report_files, write_report
-    from gsa.sam_model import SamModel
-    from gsa.studies import load_study
-
     spec = load_study(args.study)
     N = args.n if args.n is not None else spec.N
     estimator = args.estimator or spec.estimator

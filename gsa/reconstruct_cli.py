@@ -7,6 +7,10 @@ import dataclasses
 import warnings
 from pathlib import Path
 
+from gsa.errors import GSAError
+from gsa.reconstruct import run_reconstruction
+from gsa.reconstruct_report import REPORT_FILES, write_reconstruction_report
+from gsa.reconstruct_spec import load_reconstruction, select_candidates
 from sam.errors import UserError, output_folder
 
 
@@ -31,8 +35,6 @@ def add_command(gsa_sub: argparse._SubParsersAction) -> None:
 
 
 def reconstruct_command(args: argparse.Namespace) -> int:
-    from gsa.errors import GSAError
-
     try:
         return _reconstruct(args)
     except GSAError as exc:
@@ -40,10 +42,6 @@ def reconstruct_command(args: argparse.Namespace) -> int:
 
 
 def _reconstruct(args: argparse.Namespace) -> int:
-    from gsa.reconstruct import run_reconstruction
-    from gsa.reconstruct_report import REPORT_FILES, write_reconstruction_report
-    from gsa.reconstruct_spec import load_reconstruction, select_candidates
-
     for flag, value, lo in (("--n", args.n, 2), ("--bootstrap", args.bootstrap, 10), ("--workers", args.workers, 1)):
         if value is not None and value < lo:
             raise UserError(f"{flag}: must be >= {lo}, got {value}")

@@ -16,14 +16,19 @@ from typing import Any
 
 import numpy as np
 
+import sam
 from gsa.bootstrap import CI_METHODS
 from gsa.problem import DISTRIBUTIONS, SALIB_NAMES, Problem
 from gsa.runner import Study
+from gsa.sam_model import OUTPUT_WORDS, SamModel
 from gsa.testfunctions import ishigami, ishigami_indices, sobol_g, sobol_g_indices
 from sam.constants import LPM
 from sam.errors import UserError, did_you_mean, where
 from sam.params import P
-from sam.plant import read_toml, refuse_other_kind
+from sam.plant import load_plant, read_toml, refuse_other_kind
+from sam.profiles import INPUT_KINDS, evaluate
+from sam.scenario import check_step, load_mass_profile
+from sam.simulate import PRECISIONS
 
 #: Units a study may give bounds in, and their factor to SI.
 UNITS = {"1": 1.0, "SI": 1.0, "%": 0.01, "L/min": LPM, "bar": 1e5, "MPa": 1e6, "Pa": 1.0,
@@ -202,14 +207,6 @@ def _analytic_study(table, source, name, model, problem, common) -> StudySpec:
 
 
 def _sam_study(table, source, name, problem, units, common) -> StudySpec:
-    import sam
-    from sam.plant import load_plant
-    from sam.profiles import INPUT_KINDS, evaluate
-    from sam.scenario import check_step, load_mass_profile
-    from sam.simulate import PRECISIONS
-
-    from gsa.sam_model import OUTPUT_WORDS, SamModel
-
     sim = table.get("simulation")
     if not isinstance(sim, dict):
         raise UserError(f"{where(source, 'simulation')}: model 'sam' needs a [simulation] table")

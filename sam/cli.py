@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from .errors import UserError, output_file
-from .plotting import figure_suffixes
+from .plotting import figure_suffixes, plot_recordings
 from .recording import write_recording
 from .scenario import load_scenario, run_scenario
 
@@ -49,7 +49,5 @@ def write_outputs(args: argparse.Namespace, out: Path, scenario, rec) -> None:
     if "warning" in rec.metadata:
         print(f"warning: {rec.metadata['warning']}")
     if args.plot is not None:
-        from .plotting import plot_recordings
-
         plot_recordings({scenario.name: rec}, args.plot, scenario.description)
         print(f"wrote {args.plot}")

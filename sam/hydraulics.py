@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from .constants import KAPPA_AIR, LEAK_REFERENCE_DP, LPM, P_ATM, P_CAVITATION
+from .params import P
 from .simd import quot, sqrt, where
 
 # error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
@@ -257,8 +258,6 @@ def inverse_capacitance(V, p, B_eff, air_fraction, C_hose, f=np.float64, air=Tru
 
 def supply_flow_array(x_s, p_A, p_B, p):
     """:func:`supply_flow` over trajectories (n,), for one parameter vector ``p``."""
-    from .params import P
-
     K_PA = flow_coefficient(p[P.Q_N_PA], p[P.dp_N_PA])
     K_PB = flow_coefficient(p[P.Q_N_PB], p[P.dp_N_PB])
     return _supply_flow_loop(x_s, p_A, p_B, p[P.offset], p[P.p_S], K_PA, K_PB, p[P.lap], p[P.R_supply], p[P.Q_sat],

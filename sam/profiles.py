@@ -7,6 +7,7 @@ kind validates its keys once, here, and says which key is wrong.
 
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 from typing import Any, Callable
 
@@ -127,8 +128,6 @@ def evaluate(kinds: dict[str, Callable], spec: dict[str, Any], t: np.ndarray, so
 
     Errors name the file, the field (e.g. ``faults.K_extA.t0_s``) and what is wrong.
     """
-    import inspect
-
     spec = dict(spec)
     kind = spec.pop("kind", None)
     if kind not in kinds:
