@@ -274,7 +274,7 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0, stats:
                     "false_alarm_level": dv.false_alarm_level, "trigger_level": dv.trigger_level,
                     "run_length_s": dv.run_length_s, "filter_sd_weight": {p: tt.sd_weight(p) for p in PARAMS},
                     "cusum_memory_s": tt.memory_s, "long_stroke_s": th.regimes.long_stroke_s,
-                    "long_stroke_drift_sigma": tt.long_stroke_drift,
+                    "long_stroke_drift_sigma": tt.long_stroke_drift, "long_stroke_params": list(tt.long_stroke_params),
                     "isolation": "likelihood", "position_sensor": dv.position_sensor, "source": dv.source},
         note=note,
     )

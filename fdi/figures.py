@@ -104,7 +104,8 @@ def _statistics_panel(plt, ax, t, res: dict, stats: dict, th) -> None:
     if "long_stroke" in res and res["long_stroke"][0].any():
         ax.fill_between(t, 0, 1, where=res["long_stroke"][0] > 0, transform=ax.get_xaxis_transform(), color="C9",
                         alpha=0.12, lw=0)
-        extra.append(_patch(plt, color="C9", alpha=0.25, label=f"blue: long stroke, internal-leak and offset\n"
+        which = " and ".join(th.test.long_stroke_params)
+        extra.append(_patch(plt, color="C9", alpha=0.25, label=f"blue: long stroke, {which}\n"
                                                          f"tests count only > {th.test.long_stroke_drift:g} sigma"))
     ax.set_ylabel("test statistic / its threshold")
     ax.legend(handles=ax.get_legend_handles_labels()[0] + extra, loc="upper left", bbox_to_anchor=(1.01, 1.0),

@@ -28,7 +28,7 @@ from .thresholds import Thresholds
 
 RESIDUAL_NAMES = ("nu_pA", "nu_pB", "nu_pos") + tuple(f"r_{h}" for h in HYPOTHESES)
 #: the parameters whose baselines are re-learnt after a withdrawn alarm (:func:`restarted`):
-#: those that wander in long strokes. An external leak's excursion the bank could not confirm is
+#: those whose estimates wander with the operating point. An external leak's excursion the bank could not confirm is
 #: either gone soon or too small to show in its window; a re-learnt baseline would hide it for good.
 REBASE_PARAMS = WANDERING
 
@@ -167,9 +167,9 @@ def _cusum_recursion(inc, active, keep, start):
 
 def cusum_drift(param: str, long_stroke: np.ndarray, th: Thresholds) -> float | np.ndarray:
     """The CUSUM drift [sigma] of ``param``'s test: ``long_stroke_drift`` on the long-stroke
-    samples (B, T) if the parameter wanders there (fdi.conditions.WANDERING), else ``drift``."""
+    samples (B, T) if the parameter still wanders there (``long_stroke_params``), else ``drift``."""
     t = th.test
-    if param not in WANDERING or not long_stroke.any():
+    if param not in t.long_stroke_params or not long_stroke.any():
         return t.drift
     return np.where(long_stroke, t.long_stroke_drift, t.drift)
 
