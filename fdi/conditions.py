@@ -28,8 +28,9 @@ UNOBSERVABLE_PINNED = {"K_int": (False, False), "K_extA": (False, True), "K_extB
 #: truncates the filter's velocity sigma points, and the bias of the predicted pressures sets the
 #: null-leakage balance that K_int and the offset would absorb
 HELD_ON_STOP = ("K_int", "offset")
-#: the parameters whose estimates wander in a long steady stroke (Regimes.long_stroke_s): a leak
-#: across the piston and a spool offset bias a steady stroke's flow balance alike
+#: the parameters whose baselines are re-learnt after a withdrawn alarm: a leak across the piston
+#: and a spool offset bias a steady stroke's flow balance alike (which tests still hold their
+#: long-stroke excursions is Thresholds.long_stroke_params)
 WANDERING = ("K_int", "offset")
 
 
