@@ -250,20 +250,37 @@ class FormNoise:
     low_share: float = 1.0
     #: s: the window over which the piston's rate is taken from the measured position
     velocity_window_s: float = 0.02
+    #: m: within this of an end stop (the measured piston) the piston may be in contact: a real
+    #: stop gives and rebounds (about 1 mm on the rig), the model's stops it dead
+    stop_margin_m: float = 2e-3
+    #: 1, the std of the chamber's displacement flow near a stop as a fraction of A |v| (1: the
+    #: piston may rebound as fast as it came); 0: the inelastic stop taken as exact
+    stop_share: float = 1.0
+    #: 1, while a chamber reads at the transmitter's floor (cavitating): the std of its pressure
+    #: as a fraction of the pressure that the flow through it since it reached the floor would
+    #: build (a void of unknown size may absorb it all); 0: no such noise
+    floor_share: float = 1.0
 
     def __post_init__(self):
-        for name in ("band_margin", "band_share", "low_share"):
+        for name in ("band_margin", "band_share", "low_share", "stop_share", "floor_share"):
             _require(_number(getattr(self, name), 0.0, 1e3), f"form_noise.{name}", getattr(self, name),
                      "must be a fraction >= 0")
         _require(_number(self.low_pressure, -1e5, 1e9), "form_noise.low_pressure", self.low_pressure,
                  "must be a gauge pressure >= -1e5 Pa")
         _require(_number(self.velocity_window_s, 0.0, 10.0, open_low=True), "form_noise.velocity_window_s",
                  self.velocity_window_s, "must be a duration > 0 s")
+        _require(_number(self.stop_margin_m, 0.0, 1.0), "form_noise.stop_margin_m", self.stop_margin_m,
+                 "must be a distance >= 0 m")
+
+    @classmethod
+    def exact(cls) -> "FormNoise":
+        """Every term off: the model's form taken as exact everywhere."""
+        return cls(band_share=0.0, low_share=0.0, stop_share=0.0, floor_share=0.0)
 
     @property
     def active(self) -> bool:
         """Whether any term adds noise (else the filter is the model's own, bit for bit)."""
-        return self.band_share > 0.0 or self.low_share > 0.0
+        return self.band_share > 0.0 or self.low_share > 0.0 or self.stop_share > 0.0 or self.floor_share > 0.0
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,108 @@
+"""Where the model's form errs at an end stop and at the transmitter's floor (fdi.form_noise):
+a stop's contact may move the piston on at the speed it came in with, and a reading coming back
+from the floor may find the pressure anywhere the flow through the chamber could have built
+while a void absorbed it. Closed forms of the pressures' extra variance, and the rig's stop
+impact and cavitating chamber that the filter with the model's form taken as exact there
+confirmed as a fault."""
+
+from __future__ import annotations
+
+import dataclasses
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from sam import P, load_plant
+from sam.dynamics import areas
+from fdi.config import FormNoise
+from fdi.form_noise import at_floor, form_gates, spool_positions
+from fdi.states import POS_X
+
+DT = 1e-3
+Q = 5e4  # Pa/sqrt(s): the pressures' own random walk in these checks
+
+
+@pytest.fixture(scope="module")
+def plant():
+    return load_plant().vector()[None, :]
+
+
+def only(**kw) -> FormNoise:
+    """FormNoise with every term off but those named."""
+    return dataclasses.replace(FormNoise.exact(), **kw)
+
+
+def test_a_stop_contact_widens_the_pressures_by_the_displacement_flow(plant):
+    """The piston retracts at 30 mm/s onto the retracted stop (readings beyond it read as the
+    stop, 0) and rests there. Within stop_margin_m of the stop each chamber's gate is
+    1 + (A_c v B_eff / V_c)^2 dt / q^2 with v = 30 mm/s, the measured rate; farther out, and at
+    rest on the stop, it is 1 (the inelastic stop is exact for a piston that does not move)."""
+    p = plant[0]
+    T, v, k_hit = 400, 0.03, 200
+    x = np.maximum(v * DT * (k_hit - np.arange(T)), 0.0)  # reaches 0 at k_hit, then held there
+    inp = SimpleNamespace(u=np.full((1, T), -3.0), params=plant, dt=DT, pA=np.full((1, T), 5e6),
+                          pB=np.full((1, T), 6e6), pos=x[None, :], pos_kind=POS_X)
+    g = form_gates(inp, only(stop_share=1.0, stop_margin_m=2e-3, velocity_window_s=0.02), Q, Q)
+    A_A, A_B = areas(p[P.D_piston], p[P.D_rod])
+    near = slice(k_hit - 66, k_hit + 1)  # the last 2 mm at 30 mm/s
+    for c, (area, V) in enumerate(((A_A, p[P.V_0A] + A_A * x), (A_B, p[P.V_0B] + A_B * (p[P.x_max] - x)))):
+        want = 1.0 + (area * v * p[P.B_eff] / V) ** 2 * DT / Q ** 2
+        assert want.min() > 10.0  # the contact's flow is large against the model's own pressure noise
+        np.testing.assert_allclose(g[0, near, c], want[near], rtol=1e-6)
+    np.testing.assert_array_equal(g[0, x > 2.1e-3], 1.0)
+    np.testing.assert_array_equal(g[0, k_hit + 20:], 1.0)  # resting on the stop: the model's exact
+    assert np.all(form_gates(inp, only(), Q, Q) == 1.0)
+
+
+def test_the_extension_stop_is_the_joint_limit(plant):
+    """Near the extension stop (the joint limit's x, 0.437 m, not the stroke's 0.545 m) the same
+    term applies; at 0.44 m below the stroke's end, nowhere near the joint limit, it does not."""
+    from sam.dynamics import stroke_ends
+
+    x_end = float(stroke_ends(plant)[0])
+    assert x_end == pytest.approx(0.4374, abs=1e-4)
+    T, v = 200, 0.05
+    for x0, expect in ((x_end - 0.05, False), (x_end - 0.005, True)):
+        x = np.minimum(x0 + v * DT * np.arange(T), x_end)
+        inp = SimpleNamespace(u=np.full((1, T), 3.0), params=plant, dt=DT, pA=np.full((1, T), 5e6),
+                              pB=np.full((1, T), 6e6), pos=x[None, :], pos_kind=POS_X)
+        g = form_gates(inp, only(stop_share=1.0), Q, Q)
+        assert bool((g[0, :, 0] > 1.0).any()) == expect
+
+
+def test_a_reading_back_from_the_floor_finds_the_flow_of_the_whole_run(plant):
+    """Chamber A reads 0.1 MPa (below low_pressure), then at the floor (missing) for 150 samples
+    with the valve opening P->A (2 V) and the piston at rest, then 1 MPa again. Only at that
+    first reading back is p_A's gate above 1, by S^2 / (q^2 dt) with S the pressure the supply's
+    inflow K_PA (x_s + offset) sqrt(p_S - p_T) builds in V_A over the run (capped at p_S - p_T);
+    a dropout after a high reading widens nothing."""
+    p = plant[0]
+    T, k0, n, x = 400, 100, 150, 0.3
+    pA = np.full(T, 1e5)
+    pA[k0:k0 + n] = np.nan
+    pA[k0 + n:] = 1e6
+    u = np.full((1, T), 2.0)
+    inp = SimpleNamespace(u=u, params=plant, dt=DT, pA=pA[None, :], pB=np.full((1, T), 5e6),
+                          pos=np.full((1, T), x), pos_kind=POS_X)
+    g = form_gates(inp, only(floor_share=1.0), Q, Q)
+    xs = spool_positions(u, plant, DT)[0]
+    K = p[P.Q_N_PA] / np.sqrt(p[P.dp_N_PA])
+    A_A, _ = areas(p[P.D_piston], p[P.D_rod])
+    rate = K * (xs + p[P.offset]) * np.sqrt(p[P.p_S] - p[P.p_T]) * p[P.B_eff] / (p[P.V_0A] + A_A * x)
+    S = min(DT * rate[k0:k0 + n].sum(), p[P.p_S] - p[P.p_T])
+    assert S > 1e6  # a void refilled over 0.15 s hides MPa: far beyond the transmitter's noise
+    assert g[0, k0 + n, 0] == pytest.approx(1.0 + S ** 2 / (Q ** 2 * DT), rel=1e-9)
+    mask = np.ones(T, dtype=bool)
+    mask[k0 + n] = False
+    np.testing.assert_array_equal(g[0, mask, 0], 1.0)
+    np.testing.assert_array_equal(g[0, :, 1], 1.0)
+    inp.pA[0, :k0] = 5e6  # a transmitter's dropout at 5 MPa is no floor
+    assert not at_floor(inp.pA, FormNoise().low_pressure).any()
+    assert np.all(form_gates(inp, only(floor_share=1.0), Q, Q) == 1.0)
+
+
+@pytest.mark.parametrize("field,value", [("stop_margin_m", -1e-3), ("stop_share", -1.0), ("floor_share", True)])
+def test_a_bad_setting_names_its_field(field, value):
+    with pytest.raises(ValueError, match=f"form_noise.{field}"):
+        FormNoise(**{field: value})
