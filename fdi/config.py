@@ -234,7 +234,9 @@ class FormNoise:
     """Process noise where the model's form is known to be uncertain (:mod:`fdi.form_noise`): on
     the chamber pressures, at the null-leakage band's edge, where Eqs. (13)-(14) step the leakage
     off (a real valve's fades over an unknown width, and a position loop parks the spool there),
-    and near cavitation, where Eqs. (8)-(9) keep a constant bulk modulus."""
+    near cavitation, where Eqs. (8)-(9) keep a constant bulk modulus, at an end stop, whose
+    contact the model draws inelastic, and where a reading comes back from the transmitter's
+    floor (a cavitating chamber's void may have absorbed the flow through it)."""
 
     #: 1, fraction of leak_band: "at the edge" is | |x_s + offset| - leak_band | <= margin leak_band
     #: (a position loop parks the spool within a few tenths of it; the fade's width is unknown)
@@ -251,14 +253,15 @@ class FormNoise:
     #: s: the window over which the piston's rate is taken from the measured position
     velocity_window_s: float = 0.02
     #: m: within this of an end stop (the measured piston) the piston may be in contact: a real
-    #: stop gives and rebounds (about 1 mm on the rig), the model's stops it dead
+    #: stop gives and rebounds (the rig's: 0.3-0.5 mm, at half the impact speed), the model's
+    #: stops it dead; and the encoder's frame puts a stop up to mm off the model's
     stop_margin_m: float = 2e-3
     #: 1, the std of the chamber's displacement flow near a stop as a fraction of A |v| (1: the
     #: piston may rebound as fast as it came); 0: the inelastic stop taken as exact
     stop_share: float = 1.0
-    #: 1, while a chamber reads at the transmitter's floor (cavitating): the std of its pressure
-    #: as a fraction of the pressure that the flow through it since it reached the floor would
-    #: build (a void of unknown size may absorb it all); 0: no such noise
+    #: 1, where a chamber's reading comes back from the transmitter's floor (it may have
+    #: cavitated): the std of its pressure as a fraction of the pressure the flow through it
+    #: while at the floor would build (a void of unknown size may have absorbed it all); 0: none
     floor_share: float = 1.0
 
     def __post_init__(self):
@@ -273,7 +276,7 @@ class FormNoise:
                  "must be a distance >= 0 m")
 
     @classmethod
-    def exact(cls) -> "FormNoise":
+    def exact(cls) -> FormNoise:
         """Every term off: the model's form taken as exact everywhere."""
         return cls(band_share=0.0, low_share=0.0, stop_share=0.0, floor_share=0.0)
 

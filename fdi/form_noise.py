@@ -28,9 +28,13 @@ cannot predict is not read as a fault:
   where the reading comes back (a bias of the whole run, not a walk).
 * **at an end stop.** Within ``stop_margin_m`` of a stop the piston may be in contact: a real
   stop gives and rebounds, the model's stops the piston dead (an inelastic stop), so the
-  displacement flow is uncertain by its whole size, s_c = A_c |v| (v measured, as above).
+  displacement flow is uncertain by its whole size, s_c = A_c |v| (v measured, as above), where
+  the piston is driven into the stop: moving toward it, or with the valve driving it there (a
+  rebound runs against the valve). A piston that leaves a stop under its valve's drive leaves a
+  contact that stored next to nothing: the model's stop is exact for it.
 
-Each pressure term but the floor's adds the variance of the pressure its flow error builds in one sample of dt,
+Each pressure term but the floor's adds the variance of the pressure its flow error builds in
+one sample of dt,
 
     q_extra^2 = (share s_c B_eff / V_c dt)^2       [Pa^2 per sample],
 
@@ -171,7 +175,8 @@ def form_gates(inp, noise, q_pA: float, q_pB: float) -> np.ndarray:
         edge = near_band_edge(spool_positions(inp.u, inp.params, inp.dt), inp.params, noise.band_margin)
         for c, flow in enumerate(null_flow_spread(inp.pA, inp.pB, inp.params)):
             var[c] += np.where(edge, (noise.band_share * flow * caps[c]) ** 2, 0.0)
-    speed = np.abs(measured_rates(x, inp.dt, noise.velocity_window_s))
+    rate = measured_rates(x, inp.dt, noise.velocity_window_s)
+    speed = np.abs(rate)
     chamber_areas = areas(p("D_piston"), p("D_rod"))
     if noise.low_share > 0.0:
         for c, (pc, area) in enumerate(zip((inp.pA, inp.pB), chamber_areas)):
@@ -179,15 +184,17 @@ def form_gates(inp, noise, q_pA: float, q_pB: float) -> np.ndarray:
                 low = pc < noise.low_pressure
             var[c] += np.where(low, (noise.low_share * area * speed * caps[c]) ** 2, 0.0)
     if noise.stop_share > 0.0:
-        with np.errstate(invalid="ignore"):
-            near = (x <= noise.stop_margin_m) | (x >= stroke_ends(inp.params)[:, None] - noise.stop_margin_m)
+        x_end = stroke_ends(inp.params)[:, None]
+        with np.errstate(invalid="ignore"):  # driven into a stop: arriving, or thrown back against the valve
+            near = (((x <= noise.stop_margin_m) & ((rate < 0.0) | (inp.u < 0.0)))
+                    | ((x >= x_end - noise.stop_margin_m) & ((rate > 0.0) | (inp.u > 0.0))))
         for c, area in enumerate(chamber_areas):
             var[c] += np.where(near, (noise.stop_share * area * speed * caps[c]) ** 2, 0.0)
     if noise.floor_share > 0.0:
         inflow = supply_inflows(spool_positions(inp.u, inp.params, inp.dt), inp.params)
         for c, (pc, area) in enumerate(zip((inp.pA, inp.pB), chamber_areas)):
-            rate = noise.floor_share * (inflow[c] + area * speed) * caps[c]
-            extra = floor_variance(at_floor(pc, noise.low_pressure), rate, p("p_S") - p("p_T"), inp.dt)
+            build = noise.floor_share * (inflow[c] + area * speed) * caps[c]  # Pa/s
+            extra = floor_variance(at_floor(pc, noise.low_pressure), build, p("p_S") - p("p_T"), inp.dt)
             var[c] += extra / (inp.dt * inp.dt)
     for c, q in enumerate((q_pA, q_pB)):
         if q > 0.0:
