@@ -234,7 +234,9 @@ class FormNoise:
     """Process noise where the model's form is known to be uncertain (:mod:`fdi.form_noise`): on
     the chamber pressures, at the null-leakage band's edge, where Eqs. (13)-(14) step the leakage
     off (a real valve's fades over an unknown width, and a position loop parks the spool there),
-    and near cavitation, where Eqs. (8)-(9) keep a constant bulk modulus."""
+    near cavitation, where Eqs. (8)-(9) keep a constant bulk modulus, at an end stop, whose
+    contact the model draws inelastic, and where a reading comes back from the transmitter's
+    floor (a cavitating chamber's void may have absorbed the flow through it)."""
 
     #: 1, fraction of leak_band: "at the edge" is | |x_s + offset| - leak_band | <= margin leak_band
     #: (a position loop parks the spool within a few tenths of it; the fade's width is unknown)
@@ -250,20 +252,38 @@ class FormNoise:
     low_share: float = 1.0
     #: s: the window over which the piston's rate is taken from the measured position
     velocity_window_s: float = 0.02
+    #: m: within this of an end stop (the measured piston) the piston may be in contact: a real
+    #: stop gives and rebounds (the rig's: 0.3-0.5 mm, at half the impact speed), the model's
+    #: stops it dead; and the encoder's frame puts a stop up to mm off the model's
+    stop_margin_m: float = 2e-3
+    #: 1, the std of the chamber's displacement flow near a stop as a fraction of A |v| (1: the
+    #: piston may rebound as fast as it came); 0: the inelastic stop taken as exact
+    stop_share: float = 1.0
+    #: 1, where a chamber's reading comes back from the transmitter's floor (it may have
+    #: cavitated): the std of its pressure as a fraction of the pressure the flow through it
+    #: while at the floor would build (a void of unknown size may have absorbed it all); 0: none
+    floor_share: float = 1.0
 
     def __post_init__(self):
-        for name in ("band_margin", "band_share", "low_share"):
+        for name in ("band_margin", "band_share", "low_share", "stop_share", "floor_share"):
             _require(_number(getattr(self, name), 0.0, 1e3), f"form_noise.{name}", getattr(self, name),
                      "must be a fraction >= 0")
         _require(_number(self.low_pressure, -1e5, 1e9), "form_noise.low_pressure", self.low_pressure,
                  "must be a gauge pressure >= -1e5 Pa")
         _require(_number(self.velocity_window_s, 0.0, 10.0, open_low=True), "form_noise.velocity_window_s",
                  self.velocity_window_s, "must be a duration > 0 s")
+        _require(_number(self.stop_margin_m, 0.0, 1.0), "form_noise.stop_margin_m", self.stop_margin_m,
+                 "must be a distance >= 0 m")
+
+    @classmethod
+    def exact(cls) -> FormNoise:
+        """Every term off: the model's form taken as exact everywhere."""
+        return cls(band_share=0.0, low_share=0.0, stop_share=0.0, floor_share=0.0)
 
     @property
     def active(self) -> bool:
         """Whether any term adds noise (else the filter is the model's own, bit for bit)."""
-        return self.band_share > 0.0 or self.low_share > 0.0
+        return self.band_share > 0.0 or self.low_share > 0.0 or self.stop_share > 0.0 or self.floor_share > 0.0
 
 
 @dataclass(frozen=True)

@@ -18,8 +18,23 @@ cannot predict is not read as a fault:
   flow until the cavity is filled again; Eqs. (8)-(9) with a constant B_eff and a clamp at the
   vapour pressure draw neither. There the pressure rate is uncertain by the displacement flow's
   whole effect, s_c = A_c |v|, with v the measured position's rate over ``velocity_window_s``.
+* **at the transmitter's floor.** A reading at the bottom of a transmitter's range is missing to
+  the filter (``InputChecks.floor_band_Pa``): the chamber may be cavitating, and then a void of
+  unknown size absorbs the flow through it (valve inflow and displacement) until it is filled,
+  while Eqs. (8)-(9) raise the pressure at once. Over a run of missing readings that began after
+  a reading below ``low_pressure``, that flow could build S_c = share int (Q_in + A_c |v|)
+  B_eff / V_c dt (at most p_S - p_T), Q_in the supply's flow into the chamber at tank pressure
+  through Eqs. (10)-(12) at the spool position; the pressure's variance is widened by S_c^2 once,
+  where the reading comes back (a bias of the whole run, not a walk).
+* **at an end stop.** Within ``stop_margin_m`` of a stop the piston may be in contact: a real
+  stop gives and rebounds, the model's stops the piston dead (an inelastic stop), so the
+  displacement flow is uncertain by its whole size, s_c = A_c |v| (v measured, as above), where
+  the piston is driven into the stop: moving toward it, or with the valve driving it there (a
+  rebound runs against the valve). A piston that leaves a stop under its valve's drive leaves a
+  contact that stored next to nothing: the model's stop is exact for it.
 
-Each pressure term adds the variance of the pressure its flow error builds in one sample of dt,
+Each pressure term but the floor's adds the variance of the pressure its flow error builds in
+one sample of dt,
 
     q_extra^2 = (share s_c B_eff / V_c dt)^2       [Pa^2 per sample],
 
@@ -37,7 +52,7 @@ import numpy as np
 from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
 from sam import P
-from sam.dynamics import areas
+from sam.dynamics import areas, stroke_ends
 from sam.geometry import piston_position
 
 from .states import POS_X
@@ -107,6 +122,43 @@ def measured_rates(x: np.ndarray, dt: float, window_s: float) -> np.ndarray:
     return np.nan_to_num(v)
 
 
+def at_floor(p: np.ndarray, low: float) -> np.ndarray:
+    """(B, T) bool: readings p (B, T) [Pa] missing after a finite reading below ``low`` [Pa],
+    through the whole run of missing samples (causal: the last reading before it decides)."""
+    T = p.shape[1]
+    k = np.where(np.isfinite(p), np.arange(T)[None, :], -1)
+    last = np.maximum.accumulate(k, axis=1)
+    before = np.take_along_axis(p, np.maximum(last, 0), axis=1)
+    with np.errstate(invalid="ignore"):
+        return ~np.isfinite(p) & (last >= 0) & (before < low)
+
+
+def supply_inflows(x_s: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Q_A, Q_B) (B, T) [m^3/s]: the supply's flow into chambers A and B at tank pressure through
+    the metering edges P->A and P->B of Eqs. (10)-(12), K_v (x_s + offset) sqrt(p_S - p_T), at spool
+    positions x_s (B, T) [1] (0 through an edge that is closed)."""
+    p = lambda name: params[:, P[name]][:, None]  # noqa: E731
+    opening = x_s + p("offset")
+    head = np.sqrt(np.maximum(p("p_S") - p("p_T"), 0.0))
+    return (p("Q_N_PA") / np.sqrt(p("dp_N_PA")) * np.maximum(opening, 0.0) * head,
+            p("Q_N_PB") / np.sqrt(p("dp_N_PB")) * np.maximum(-opening, 0.0) * head)
+
+
+def floor_variance(floor: np.ndarray, rate: np.ndarray, cap: np.ndarray, dt: float) -> np.ndarray:
+    """(B, T) [Pa^2]: at the first sample after each run of ``floor`` (B, T) bool, the square of
+    the pressure ``rate`` (B, T) [Pa/s] builds over that run, dt times its sum, at most ``cap`` (B, 1)
+    [Pa]; 0 elsewhere. Added there, not spread over the run: while the reading is missing the
+    model's step clamps the sigma points at the vapour pressure, which would undo a walk."""
+    r = np.where(floor, np.nan_to_num(rate), 0.0) * dt
+    c = np.cumsum(r, axis=1)
+    start = floor & ~np.concatenate([np.zeros_like(floor[:, :1]), floor[:, :-1]], axis=1)
+    base = np.maximum.accumulate(np.where(start, c - r, 0.0), axis=1)  # the sum before each run
+    back = np.zeros_like(floor)
+    back[:, 1:] = floor[:, :-1] & ~floor[:, 1:]
+    built = np.concatenate([np.zeros_like(c[:, :1]), (c - base)[:, :-1]], axis=1)  # the run's sum, one sample on
+    return np.where(back, np.minimum(built, cap) ** 2, 0.0)
+
+
 def form_gates(inp, noise, q_pA: float, q_pB: float) -> np.ndarray:
     """(B, T, 2) factors on the random walk of p_A and p_B (std ``q_pA``, ``q_pB`` [Pa/sqrt(s)])
     of the runs of ``inp`` (:class:`fdi.filter.FilterInput`) for the settings ``noise``
@@ -123,12 +175,27 @@ def form_gates(inp, noise, q_pA: float, q_pB: float) -> np.ndarray:
         edge = near_band_edge(spool_positions(inp.u, inp.params, inp.dt), inp.params, noise.band_margin)
         for c, flow in enumerate(null_flow_spread(inp.pA, inp.pB, inp.params)):
             var[c] += np.where(edge, (noise.band_share * flow * caps[c]) ** 2, 0.0)
+    rate = measured_rates(x, inp.dt, noise.velocity_window_s)
+    speed = np.abs(rate)
+    chamber_areas = areas(p("D_piston"), p("D_rod"))
     if noise.low_share > 0.0:
-        speed = np.abs(measured_rates(x, inp.dt, noise.velocity_window_s))
-        for c, (pc, area) in enumerate(zip((inp.pA, inp.pB), areas(p("D_piston"), p("D_rod")))):
+        for c, (pc, area) in enumerate(zip((inp.pA, inp.pB), chamber_areas)):
             with np.errstate(invalid="ignore"):
                 low = pc < noise.low_pressure
             var[c] += np.where(low, (noise.low_share * area * speed * caps[c]) ** 2, 0.0)
+    if noise.stop_share > 0.0:
+        x_end = stroke_ends(inp.params)[:, None]
+        with np.errstate(invalid="ignore"):  # driven into a stop: arriving, or thrown back against the valve
+            near = (((x <= noise.stop_margin_m) & ((rate < 0.0) | (inp.u < 0.0)))
+                    | ((x >= x_end - noise.stop_margin_m) & ((rate > 0.0) | (inp.u > 0.0))))
+        for c, area in enumerate(chamber_areas):
+            var[c] += np.where(near, (noise.stop_share * area * speed * caps[c]) ** 2, 0.0)
+    if noise.floor_share > 0.0:
+        inflow = supply_inflows(spool_positions(inp.u, inp.params, inp.dt), inp.params)
+        for c, (pc, area) in enumerate(zip((inp.pA, inp.pB), chamber_areas)):
+            build = noise.floor_share * (inflow[c] + area * speed) * caps[c]  # Pa/s
+            extra = floor_variance(at_floor(pc, noise.low_pressure), build, p("p_S") - p("p_T"), inp.dt)
+            var[c] += extra / (inp.dt * inp.dt)
     for c, q in enumerate((q_pA, q_pB)):
         if q > 0.0:
             gates[:, :, c] = 1.0 + np.nan_to_num(var[c]) * inp.dt / (q * q)

@@ -468,7 +468,7 @@ def test_a_recording_that_starts_at_rest_does_not_alarm_at_its_first_motion(monk
     assert not stood(run_filter(inp, FilterConfig())).any()
     # the counterfactual on the filter the runs were picked with: the pressures' noise where the
     # model's form errs (FormNoise) withdraws one of the two baseline-at-rest alarms by itself
-    exact = run_filter(inp, FilterConfig(form_noise=FormNoise(band_share=0.0, low_share=0.0)))
+    exact = run_filter(inp, FilterConfig(form_noise=FormNoise.exact()))
     assert not stood(exact).any()
     monkeypatch.setattr(fdi.statistics, "before_motion", lambda out, th: np.zeros(out.mean.shape[:2], dtype=bool))
     assert stood(exact)[:2].all()

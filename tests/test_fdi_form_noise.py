@@ -92,7 +92,7 @@ def test_every_filter_of_the_bank_carries_the_detecting_filters_edge(plant):
     u = np.full((1, 20), plant[0, P.leak_band] / plant[0, P.K_u])
     inp = SimpleNamespace(u=u, params=plant, dt=DT, pA=np.full(u.shape, 5e6), pB=np.full(u.shape, 2e6),
                           pos=np.full(u.shape, 0.1), pos_kind=POS_X, pS=None)
-    gates, group = random_walk_gates(inp, FilterConfig(form_noise=FormNoise(band_share=0.0, low_share=0.0)))
+    gates, group = random_walk_gates(inp, FilterConfig(form_noise=FormNoise.exact()))
     assert gates.shape[-1] == 2 and group[0] == -1 and group[1] == -1
     gates, group = random_walk_gates(inp, detect)
     assert gates.shape[-1] == 4 and tuple(group[:2]) == (2, 3) and np.all(gates[0, :, 2] > 1.0)

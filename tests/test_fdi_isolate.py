@@ -853,7 +853,7 @@ def test_offset_whose_boom_settles_on_the_stop_is_isolated_within_1s(monkeypatch
     res = tune.chunk_job(load_plant(), th, "offset", 0.01, 25, 500100)
     assert res["m_L"][22] > 740.0 and tune.HYP[res["iso_h"][22]] == "offset+"
     assert 0 <= res["iso_k"][22] - res["k_onset"][22] <= 1000
-    exact = FilterConfig(form_noise=FormNoise(band_share=0.0, low_share=0.0))
+    exact = FilterConfig(form_noise=FormNoise.exact())
     monkeypatch.setattr(tune, "FilterConfig", lambda: exact)
     res = tune.chunk_job(load_plant(), th, "offset", 0.01, 25, 500100)
     for b in (22, 23):

@@ -116,7 +116,7 @@ def test_an_offset_the_notch_states_absorb_is_found_by_the_trigger():
     k0 = int(runs.truth["k_onset"][b])
     th = Thresholds.shipped().with_(confirm_nats=20.0, persist_s=0.0)
     # the filter as the run was found with: the model's form taken as exact (no FormNoise)
-    out = run_filter(runs.inp, FilterConfig(form_noise=FormNoise(band_share=0.0, low_share=0.0)))
+    out = run_filter(runs.inp, FilterConfig(form_noise=FormNoise.exact()))
     st = statistics(out, th)
     second = k0 + 1000
     cusum_first = [int(first_alarm(st[h][b:b + 1], th.test.h[h])[0]) for h in HYPOTHESES]
