@@ -200,9 +200,21 @@ def _parse_metadata(lines: list[str]) -> dict[str, str]:
 def _read_mat(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], None, list[str]]:
     """Known columns, metadata, no line numbers (a .mat file has none), all variable names."""
     variables = _load_mat(path)
+    _check_not_a_struct(variables, path)
     metadata = _mat_metadata(variables.pop(_MAT_DESCRIPTION, None), path)
     columns = {name: _mat_vector(name, variables[name], path) for name in _keep_known(list(variables), path)}
     return columns, metadata, None, list(variables)
+
+
+def _check_not_a_struct(variables: dict[str, np.ndarray], path: Path) -> None:
+    # MATLAB users often keep a run in one struct: say how to save it as the format's variables
+    if "t" in variables:
+        return
+    for name, value in variables.items():
+        fields = np.asarray(value).dtype.names or ()
+        if "t" in fields:
+            raise RecordingError(f"{where(path, name)}: a struct with fields {', '.join(fields)}; the format wants one "
+                                 f"variable per column: in MATLAB, save(file, '-struct', '{name}') saves them so")
 
 
 def _load_mat(path: Path) -> dict[str, np.ndarray]:
@@ -239,6 +251,9 @@ def _mat_metadata(value: np.ndarray | None, path: Path) -> dict[str, str]:
     if value is None:
         return {}
     value = np.asarray(value)
+    if value.dtype.kind == "O" and all(np.asarray(c).dtype.kind == "U" for c in value.reshape(-1)):
+        # a cell array of char lines, MATLAB's other way to hold several lines of text
+        value = np.array(["\n".join(str(r).rstrip() for r in np.asarray(c).reshape(-1)) for c in value.reshape(-1)])
     if value.dtype.kind != "U":
         raise RecordingError(f"{where(path, _MAT_DESCRIPTION)}: must be text ({_mat_kind(value)} found)")
     # a char matrix comes back as its rows, padded with blanks to equal length

@@ -118,3 +118,90 @@ def test_mat_row_or_column_vectors_ints_float32_and_a_char_matrix_description(tm
     assert rec.metadata == {"description": "rig B, run 7\nhealthy"}
     assert rec.signals["pB"].dtype == np.float64 and np.array_equal(rec.signals["pB"], COLUMNS["pB"])
     assert np.array_equal(rec.signals["u"], COLUMNS["u"].astype(np.float32).astype(float))
+
+
+# ------------------------------------------------ pressures at a transmitter's ceiling
+
+
+def test_at_ceiling_marks_runs_flat_at_the_top_of_a_noisy_signal_only():
+    from sam.measurement import at_ceiling
+
+    rng = np.random.default_rng(3)
+    p = 6e6 + 2e6 * np.sin(np.linspace(0, 6, 4000)) + rng.normal(0, 15e3, 4000)
+    assert not at_ceiling(p, 1e-3).any()  # noise never repeats its top reading
+    clipped = np.minimum(p, 7.5e6)
+    marked, cut = at_ceiling(clipped, 1e-3), p >= 7.5e6
+    assert not (marked & ~cut).any() and marked.sum() >= 0.98 * cut.sum()  # flickers at the edge are short runs
+    smooth = np.minimum(6e6 + 2e6 * np.sin(np.linspace(0, 6, 4000)), 7.5e6)
+    assert not at_ceiling(smooth, 1e-3).any()  # no noise: a simulation's own flat top, not a transmitter
+    short = p.copy()
+    short[100:104] = short.max() + 1.0  # 4 equal readings: a top, not a saturated run
+    assert not at_ceiling(short, 1e-3).any()
+
+
+def test_mat_description_as_a_cell_array_of_lines_is_read(tmp_path):
+    scipy.io.savemat(tmp_path / "cell.mat", {**COLUMNS, "description": np.array(["rig B", "run 7"], dtype=object)})
+    assert read_recording(tmp_path / "cell.mat").metadata == {"description": "rig B\nrun 7"}
+
+
+def test_mat_run_kept_in_one_struct_is_refused_saying_how_to_save_it(tmp_path):
+    scipy.io.savemat(tmp_path / "struct.mat", {"run7": COLUMNS})
+    with pytest.raises(RecordingError) as err:
+        read_recording(tmp_path / "struct.mat")
+    assert str(err.value) == (f"{tmp_path / 'struct.mat'}: 'run7': a struct with fields t, u, pA, pB, theta; the format "
+                              "wants one variable per column: in MATLAB, save(file, '-struct', 'run7') saves them so")
+
+
+def _clipped_healthy_run():
+    """5 s of the model under a sine input with 20 kPa transmitter noise, pA cut at a transmitter's
+    top (the value below which 80 % of its samples lie), and how many samples the cut flattened."""
+    from fdi.synth import input_signal, simulate_runs
+    from sam import Recording, load_plant
+
+    t = np.arange(5001) * 1e-3
+    u = input_signal("sine", t, amplitude=3.0, frequency=0.25)
+    r = simulate_runs(load_plant().vector()[None], u, 1e-3, seed=9)
+    pA = r.inp.pA[0].copy()
+    top = float(np.quantile(pA, 0.8))
+    pA = np.minimum(pA, top)
+    return Recording(t, {"u": u, "pA": pA, "pB": r.inp.pB[0], "theta": r.inp.pos[0]}), int((pA == top).sum()), top
+
+
+def test_replay_predicts_through_a_saturated_transmitter_and_says_so(tmp_path):
+    import fdi
+    from sam import load_plant
+
+    rec, flat, top = _clipped_healthy_run()
+    d = fdi.replay_recording(rec, load_plant(), tmp_path / "sat", figure=False)
+    assert d.status == "healthy", (d.status, d.alarms, d.note)
+    n, ceiling = d.filter_health["at_range_ceiling_samples"]["pA"]
+    assert ceiling == top and 0.95 * flat <= n <= flat  # all but flickers at the edges of the cut
+
+
+def test_mismatch_does_not_score_a_saturated_transmitter(tmp_path):
+    from discrepancy.data import missing_note, prepare
+    from sam import load_plant
+
+    rec, flat, top = _clipped_healthy_run()
+    data = prepare(rec, load_plant())
+    cut = rec.signals["pA"] == top
+    missing = ~data.valid["pA"]
+    assert not (missing & ~cut).any() and missing.sum() >= 0.95 * flat  # all but flickers at the cut's edges
+    assert not (data.scored["pA"] & missing).any()
+    assert f"sample(s) of 'pA' flat at {top / 1e6:.4g} MPa, a transmitter at the top of its range" in missing_note(data)
+
+
+def test_replay_of_a_recording_on_the_loggers_clock_says_where_its_times_start(tmp_path, capsys):
+    from dataclasses import replace
+
+    from sam import write_recording
+    from samfdi.cli import main
+
+    rec, _, _ = _clipped_healthy_run()
+    rec = replace(rec, t=rec.t + 1234.5)
+    path = write_recording(tmp_path / "clock.csv", rec)
+    assert main(["fdi", "replay", str(path), "--out", str(tmp_path / "out")]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert "times above are seconds from the recording's start, t = 1234.5 s in the file (estimates.csv and " \
+           "residuals.csv keep the file's t)" in said
+    assert float((tmp_path / "out" / "estimates.csv").read_text().splitlines()[1].split(",")[0]) == 1234.5
