@@ -153,8 +153,9 @@ def test_mat_run_kept_in_one_struct_is_refused_saying_how_to_save_it(tmp_path):
 
 
 def _clipped_healthy_run():
-    """5 s of the model under a sine input with 20 kPa transmitter noise, pA cut at a transmitter's
-    top (the value below which 80 % of its samples lie), and how many samples the cut flattened."""
+    """5 s of the model under a sine input with 20 kPa transmitter noise, read through transmitters
+    whose top is where 80 % of pA's samples lie: pA cut there and the supply pressure (above the
+    top) a constant; and how many samples of pA the cut flattened."""
     from fdi.synth import input_signal, simulate_runs
     from sam import Recording, load_plant
 
@@ -164,7 +165,9 @@ def _clipped_healthy_run():
     pA = r.inp.pA[0].copy()
     top = float(np.quantile(pA, 0.8))
     pA = np.minimum(pA, top)
-    return Recording(t, {"u": u, "pA": pA, "pB": r.inp.pB[0], "theta": r.inp.pos[0]}), int((pA == top).sum()), top
+    pS = np.minimum(load_plant().supply.p_S + np.random.default_rng(9).normal(0, 20e3, len(t)), top)
+    signals = {"u": u, "pA": pA, "pB": r.inp.pB[0], "theta": r.inp.pos[0], "pS": pS}
+    return Recording(t, signals), int((pA == top).sum()), top
 
 
 def test_replay_predicts_through_a_saturated_transmitter_and_says_so(tmp_path):
@@ -176,6 +179,7 @@ def test_replay_predicts_through_a_saturated_transmitter_and_says_so(tmp_path):
     assert d.status == "healthy", (d.status, d.alarms, d.note)
     n, ceiling = d.filter_health["at_range_ceiling_samples"]["pA"]
     assert ceiling == top and 0.95 * flat <= n <= flat  # all but flickers at the edges of the cut
+    assert d.filter_health["at_range_ceiling_samples"]["pS"] == [rec.n, top]
 
 
 def test_mismatch_does_not_score_a_saturated_transmitter(tmp_path):
