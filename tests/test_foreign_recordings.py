@@ -209,3 +209,16 @@ def test_replay_of_a_recording_on_the_loggers_clock_says_where_its_times_start(t
     assert "times above are seconds from the recording's start, t = 1234.5 s in the file (estimates.csv and " \
            "residuals.csv keep the file's t)" in said
     assert float((tmp_path / "out" / "estimates.csv").read_text().splitlines()[1].split(",")[0]) == 1234.5
+
+
+def test_mismatch_says_when_it_filled_in_the_input(tmp_path):
+    from dataclasses import replace
+
+    from discrepancy.data import missing_note, prepare
+    from sam import load_plant
+
+    rec, _, _ = _clipped_healthy_run()
+    u = rec.signals["u"].copy()
+    u[:200] = np.nan  # a logger that starts the valve channel late
+    note = missing_note(prepare(replace(rec, signals={**rec.signals, "u": u}), load_plant()))
+    assert note.startswith("recording: missing (NaN) samples, 200 in the input 'u'; ")
