@@ -9,7 +9,7 @@ validation file from another plant.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.signal import savgol_filter
@@ -17,6 +17,7 @@ from scipy.signal import savgol_filter
 from sam import P, Plant, S, simulate_batch
 from sam.errors import UserError
 from sam.geometry import piston_position, stroke_end
+from sam.measurement import at_ceiling
 from sam.recording import Recording
 
 from .settings import Settings
@@ -47,6 +48,8 @@ class Prepared:
     dx_s: np.ndarray
     metadata: dict[str, str]
     scored: dict[str, np.ndarray]  # bool masks: measured, and away from the model's known gaps (gap_mask)
+    u_filled: int = 0  # samples of the input u that were missing (NaN), interpolated
+    saturated: dict = field(default_factory=dict)  # column -> [samples, Pa] at a transmitter's ceiling (not scored)
     position: str = "x"  # the position column the recording gave: "x" (a linear transducer) or "theta" (the encoder)
     columns: frozenset = frozenset()  # every signal column of the recording
 
@@ -71,13 +74,23 @@ def _fill_nan(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.interp(idx, idx[ok], y[ok]), ok
 
 
+_NAMES = {"x": "the position", "u": "the input 'u'"}
+
+
 def missing_note(data: Prepared) -> str | None:
-    """The warning for samples a recording lacks (NaN): filled in for the simulation, never scored."""
-    counts = {k: int((~v).sum()) for k, v in data.valid.items() if not v.all()}
-    if not counts:
-        return None
-    which = ", ".join(f"{n} in {'the position' if k == 'x' else repr(k)}" for k, n in counts.items())
-    return f"{data.name}: missing (NaN) samples, {which}: interpolated for the simulation and not scored"
+    """The warning for samples a recording lacks (NaN, or a pressure at its transmitter's ceiling):
+    filled in for the simulation, never scored."""
+    counts = {k: int((~v).sum()) - data.saturated.get(k, [0])[0] for k, v in data.valid.items()}
+    counts = {k: n for k, n in counts.items() if n}
+    if data.u_filled:
+        counts = {"u": data.u_filled, **counts}
+    said = []
+    if counts:
+        which = ", ".join(f"{n} in {_NAMES.get(k, repr(k))}" for k, n in counts.items())
+        said.append(f"missing (NaN) samples, {which}")
+    said += [f"{n} sample(s) of '{k}' flat at {top / 1e6:.4g} MPa, a transmitter at the top of its range"
+             for k, (n, top) in data.saturated.items()]
+    return f"{data.name}: {'; '.join(said)}: interpolated for the simulation and not scored" if said else None
 
 
 def prepare(rec: Recording, plant: Plant, *, role: str = "recording", min_duration: float = MIN_DURATION_S,
@@ -98,16 +111,19 @@ def prepare(rec: Recording, plant: Plant, *, role: str = "recording", min_durati
             f"{label}: {duration:.2f} s long; too short to separate hypotheses "
             f"(need at least {min_duration:g} s: two segments to fit, one to hold out)"
         )
-    u, _ = _fill_nan(np.nan_to_num(rec.signals["u"], nan=np.nan))
+    u, u_measured = _fill_nan(rec.signals["u"])
     if np.ptp(u) < MIN_INPUT_RANGE_V:
         raise UserError(
             f"{label}: 'u': the input does not excite the system (range {np.ptp(u):.3g} V around {np.mean(u):.3g} V); "
             f"a diagnosis needs the valve driven in both directions or at least varied by {MIN_INPUT_RANGE_V} V"
         )
     b = plant.boom
-    y, valid = {}, {}
+    y, valid, saturated = {}, {}, {}
     for col in ("pA", "pB"):
-        y[col], valid[col] = _fill_nan(rec.signals[col])
+        top = at_ceiling(rec.signals[col], dt)  # a cut-off reading is not the pressure: missing, not scored
+        if top.any():
+            saturated[col] = [int(top.sum()), float(rec.signals[col][top][0])]
+        y[col], valid[col] = _fill_nan(np.where(top, np.nan, rec.signals[col]))
     if "x" in rec.signals:
         y["x"], valid["x"] = _fill_nan(rec.signals["x"])
     else:
@@ -133,7 +149,8 @@ def prepare(rec: Recording, plant: Plant, *, role: str = "recording", min_durati
     return Prepared(
         name=label, t=np.asarray(rec.t, float), dt=dt, n_sub=n_sub, u=u, y=y, valid=valid, smooth=smooth,
         x_s=x_s, dx_s=dx_s, metadata=dict(rec.metadata), scored={k: valid[k] & ~gap for k in valid},
-        position="x" if "x" in rec.signals else "theta", columns=frozenset(rec.signals),
+        position="x" if "x" in rec.signals else "theta", columns=frozenset(rec.signals), saturated=saturated,
+        u_filled=int((~u_measured).sum()),
     )
 
 

@@ -206,12 +206,18 @@ def _replay(args) -> int:
     if diag.filter_health.get("decimated_by"):
         print(f"kept 1 sample in {diag.filter_health['decimated_by']}: the thresholds are for "
               f"{1 / diag.filter_health['dt_s']:.4g} Hz")
+    for column, (n, top) in diag.filter_health.get("at_range_ceiling_samples", {}).items():
+        print(f"{column}: {n} sample(s) sit flat at {top / 1e6:.4g} MPa, a transmitter at the top of its range: "
+              "treated as missing")
     if diag.filter_health.get("nan_samples"):
         print(f"predicted through {diag.filter_health['nan_samples']} sample(s) with missing measurements")
     if diag.filter_health.get("u_gaps_held"):
         print(f"held the input u through {diag.filter_health['u_gaps_held']} missing sample(s)")
     if diag.note:
         print(f"note: {diag.note}")
+    if rec.t[0] != 0:  # the file's clock: a user looks for an alarm's time in it
+        print(f"times above are seconds from the recording's start, t = {rec.t[0]:.10g} s in the file "
+              "(estimates.csv and residuals.csv keep the file's t)")
     print(f"wrote {Path(args.out)}/estimates.csv, residuals.csv, diagnosis.json, replay.png")
     return 0
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from sam import Plant, Recording, UserError
 from sam.errors import output_folder
+from sam.measurement import at_ceiling
 
 from . import calibration
 from .bank import DESIGN, BankDesign
@@ -51,7 +52,7 @@ def learn_reference(ref: Recording, plant: Plant, cfg: FilterConfig, *,
     """The machine constants (notch flows, bulk modulus) that ``cfg``'s calibration states learn
     on a healthy reference recording of the same machine (:mod:`fdi.calibration`)."""
     name = str(ref.source or "reference recording")
-    inp, _ = filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)
+    inp, _ = filter_input(without_saturated(ref.measured())[0], plant, drop_out_of_range=drop_out_of_range)
     cal = calibration.learn(run_filter(inp, cfg), cfg)
     if not cal.factor:
         raise UserError(f"{name}: --reference: the filter of these thresholds calibrates none of "
@@ -66,7 +67,7 @@ def reference_baseline(ref: Recording, plant: Plant, th: Thresholds, cfg: Filter
     ``cal`` if the replay uses one), where its test is not held (the whole reference if its
     second half holds it)."""
     name = str(ref.source or "reference recording")
-    inp, _ = filter_input(ref.measured(), plant, drop_out_of_range=drop_out_of_range)
+    inp, _ = filter_input(without_saturated(ref.measured())[0], plant, drop_out_of_range=drop_out_of_range)
     out = run_filter(*(calibration.apply(inp, cfg, cal) if cal is not None else (inp, cfg)))
     seen = ~held(out, th)[0]  # (4, T)
     second = np.arange(out.mean.shape[1]) >= out.mean.shape[1] // 2
@@ -89,13 +90,35 @@ def prepare(rec: Recording, plant: Plant, thresholds: Thresholds | None = None, 
     sensor = position_sensor or detect_position_sensor(rec, plant)
     thresholds = Thresholds.shipped(sensor) if thresholds is None else thresholds
     rec, k = at_thresholds_rate(rec.measured(), thresholds)  # never the true_* columns
+    rec, ceiling = without_saturated(rec)
     inp, report = filter_input(rec, plant, drop_out_of_range=drop_out_of_range, position_sensor=sensor)
     health = report.to_dict()
+    if ceiling:
+        health["at_range_ceiling_samples"] = ceiling
     if k > 1:
         health["decimated_by"] = k
     check_duration(rec, thresholds, own_baseline=own_baseline)
     check_observable(inp, plant, plant_name, str(rec.source or "the recording"))
     return rec, inp, thresholds, sensor, health
+
+
+def without_saturated(rec: Recording) -> tuple[Recording, dict]:
+    """``rec`` with the pressures' samples at a saturated transmitter's ceiling
+    (:func:`sam.measurement.at_ceiling`) made missing, as the range's floor is: the filter predicts
+    through them instead of fitting a cut-off pressure. A supply pressure read at a chamber's
+    ceiling is cut too: its transmitter is of the same range, and a supply above the range reads
+    as a constant, which no noise gives away. And {column: [samples, ceiling Pa]}."""
+    signals, said = dict(rec.signals), {}
+    for column in ("pA", "pB", "pS"):
+        if column not in signals:
+            continue
+        top = at_ceiling(signals[column], rec.dt)
+        if column == "pS":
+            top |= np.isin(signals[column], [c for _, c in said.values()])
+        if top.any():
+            said[column] = [int(top.sum()), float(signals[column][top][0])]
+            signals[column] = np.where(top, np.nan, signals[column])
+    return (replace(rec, signals=signals) if said else rec), said
 
 
 def own_noise(cfg: FilterConfig, inp) -> tuple[FilterConfig, str]:

@@ -115,3 +115,32 @@ def white_noise_std(a: np.ndarray) -> float:
     if len(d2) < 10:
         return float("nan")
     return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))
+
+
+#: a transmitter's readings count as saturated when this many or more in a row sit at the
+#: signal's largest value (and at least SATURATED_RUN_S): white noise of NOISY_PA never repeats
+#: its top reading that often
+SATURATED_RUN = 5
+SATURATED_RUN_S = 0.01
+NOISY_PA = 1e3
+
+
+def at_ceiling(a: np.ndarray, dt: float) -> np.ndarray:
+    """Bool mask of the samples of a noisy pressure signal that are a transmitter saturated at the
+    top of its range: runs of at least max(SATURATED_RUN, SATURATED_RUN_S / dt) equal readings at
+    the signal's largest value. Such a reading says only "at or above"; a signal without noise
+    (a simulation) is never called saturated, its flat top is the model's."""
+    a = np.asarray(a, dtype=float)
+    mask = np.zeros(a.shape, dtype=bool)
+    finite = np.isfinite(a)
+    if not finite.any():
+        return mask
+    top = a == a[finite].max()
+    if not white_noise_std(np.where(top, np.nan, a)) > NOISY_PA:  # the noise below the top, where it is not cut
+        return mask
+    edges = np.diff(np.r_[0, top.astype(np.int8), 0])
+    need = max(SATURATED_RUN, round(SATURATED_RUN_S / dt))
+    for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+        if stop - start >= need:
+            mask[start:stop] = True
+    return mask
