@@ -1,25 +1,27 @@
-"""Numba's on-disk cache, keyed by the sources of the whole project rather than one file.
+"""Numba's on-disk cache, keyed by the sources a kernel imports rather than its own file alone.
 
 Numba keys a cached function by the hash of its *own* file. A kernel that calls the step
 function from another file (the filter in ``fdi/kernel.py`` compiles ``sam``'s step into
-itself) would then run the old, frozen physics after ``sam/`` changed, with no error. Here
-every cached function of the project is stamped with one hash over all the project's
-package sources, so any change to any of them re-compiles every cached kernel once.
+itself) would then run the old, frozen physics after ``sam/`` changed, with no error. Here a
+cached function of the project is stamped with one hash over its file and every project module
+that file imports, directly or through others (:func:`import_closure`): the jitted functions it
+calls and the constants it freezes all come from there. A change to any of them re-compiles it
+once; a change elsewhere (a command line, a report) re-compiles nothing.
 
-Importing this module registers the locator (``sam/__init__.py`` and the other packages with
-cached kernels import it before their first ``@njit(cache=True)``). It only claims files under
-its roots; other libraries' numba caches are untouched. Caches still live in each package's
+Importing this module registers the locators (``sam/__init__.py`` and the other packages with
+cached kernels import it before their first ``@njit(cache=True)``). They only claim files under
+their roots; other libraries' numba caches are untouched. Caches still live in each package's
 ``__pycache__``, next to the numba default.
 """
 
 from __future__ import annotations
 
+import ast
 import hashlib
 from functools import lru_cache
 from pathlib import Path
 
 from numba.core import caching
-
 
 
 def _numba_class(name: str) -> type:
@@ -34,25 +36,70 @@ _PROJECT = Path(__file__).resolve().parent.parent
 PACKAGES = ("sam", "fdi", "discrepancy", "rig")  # the packages with cached numba kernels
 
 
+def _module_file(dotted: str, roots: dict[str, Path]) -> Path | None:
+    """The file of module ``dotted`` if it lies under one of ``roots`` (package name -> folder)."""
+    head, *rest = dotted.split(".")
+    if head not in roots:
+        return None
+    path = roots[head].joinpath(*rest)
+    for candidate in (path / "__init__.py", path.with_suffix(".py")):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _imports(path: Path, roots: dict[str, Path]) -> set[Path]:
+    """The project modules ``path`` imports (``import a.b``, ``from a import b``, relative forms)."""
+    package = list(path.relative_to(_root_of(path, roots).parent).with_suffix("").parts[:-1])
+    found: set[Path] = set()
+    for node in ast.walk(ast.parse(path.read_bytes())):
+        names = []
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(package[: len(package) - node.level + 1] + ([base] if base else []))
+            names = [base] + [f"{base}.{a.name}" for a in node.names]  # `from pkg import module`
+        found.update(f for f in (_module_file(n, roots) for n in names if n) if f is not None)
+    return found
+
+
+def _root_of(path: Path, roots: dict[str, Path]) -> Path:
+    return next(r for r in roots.values() if path.is_relative_to(r))
+
+
 @lru_cache(maxsize=None)
-def tree_stamp(roots: tuple[Path, ...]) -> str:
-    """sha256 over every ``*.py`` under ``roots``, their paths relative to each root included."""
+def import_closure(path: Path, roots: tuple[Path, ...]) -> tuple[Path, ...]:
+    """``path`` and every module under ``roots`` it imports, directly or through others (sorted)."""
+    by_name = {r.name: r for r in roots}
+    seen, todo = {path}, [path]
+    while todo:
+        for found in _imports(todo.pop(), by_name):
+            if found not in seen:
+                seen.add(found)
+                todo.append(found)
+    return tuple(sorted(seen))
+
+
+@lru_cache(maxsize=None)
+def source_stamp(path: Path, roots: tuple[Path, ...]) -> str:
+    """sha256 over the files of :func:`import_closure`, each with its path relative to its root."""
     digest = hashlib.sha256()
-    for root in roots:
-        for path in sorted(root.rglob("*.py")):
-            digest.update(str(path.relative_to(root.parent)).encode())
-            digest.update(path.read_bytes())
+    for f in import_closure(path, roots):
+        digest.update(str(f.relative_to(_root_of(f, {r.name: r for r in roots}).parent)).encode())
+        digest.update(f.read_bytes())
     return digest.hexdigest()
 
 
 def locators_for(roots: tuple[Path, ...]) -> list[type]:
     """numba's three file-backed locators (a user's NUMBA_CACHE_DIR, ``__pycache__``, the user's
-    cache directory), each stamped with :func:`tree_stamp` and claiming only files under ``roots``."""
+    cache directory), each stamped with :func:`source_stamp` and claiming only files under ``roots``."""
 
     def stamped(base: type) -> type:
         class Locator(base):
             def get_source_stamp(self):
-                return tree_stamp(roots)
+                return source_stamp(Path(self._py_file).resolve(), roots)
 
             @classmethod
             def from_function(cls, py_func, py_file):
@@ -68,7 +115,7 @@ def locators_for(roots: tuple[Path, ...]) -> list[type]:
 
 
 def register(roots: tuple[Path, ...]) -> None:
-    """Put the locators for ``roots`` before numba's own (once per set of roots)."""
+    """Put the locators for ``roots`` (package folders) before numba's own (once per set of roots)."""
     roots = tuple(Path(r).resolve() for r in roots)
     if any(getattr(c, "roots", None) == roots for c in CacheImpl._locator_classes):
         return

@@ -8,6 +8,7 @@ from pathlib import Path
 from numba.core.registry import CPUDispatcher
 
 import fdi.kernel
+import sam.dynamics
 import sam.simulate
 from sam import jitcache
 
@@ -56,24 +57,40 @@ def test_numba_alone_runs_the_stale_callee(tmp_path):
     assert _run_twice(tmp_path, register=False) == [2.0, 2.0]
 
 
-def test_the_projects_cached_kernels_use_the_source_tree_stamp():
+def test_the_projects_cached_kernels_are_stamped_by_what_they_import():
     kernels = [obj for mod in (sam.simulate, fdi.kernel) for obj in vars(mod).values()
                if isinstance(obj, CPUDispatcher) and getattr(obj, "_cache", None) is not None
                and hasattr(obj._cache, "_impl")]
     assert kernels
-    stamp = jitcache.tree_stamp(tuple(jitcache._PROJECT / p for p in jitcache.PACKAGES))
+    roots = tuple((jitcache._PROJECT / p).resolve() for p in jitcache.PACKAGES)
     for k in kernels:
         locator = k._cache._impl.locator
         assert type(locator).__name__.startswith("SourceTree"), k
-        assert locator.get_source_stamp() == stamp
+        own = Path(k.py_func.__code__.co_filename).resolve()
+        assert locator.get_source_stamp() == jitcache.source_stamp(own, roots)
+    # the filter's kernel is stamped by sam's step too, sam's kernels by nothing of fdi
+    kernel_closure = jitcache.import_closure(Path(fdi.kernel.__file__).resolve(), roots)
+    assert Path(sam.dynamics.__file__).resolve() in kernel_closure
+    assert not any("fdi" in f.parts for f in jitcache.import_closure(Path(sam.simulate.__file__).resolve(), roots))
 
 
-def test_the_stamp_sees_every_file_of_the_tree(tmp_path):
-    root = tmp_path / "pkg"
-    root.mkdir()
-    (root / "a.py").write_text("A = 1\n")
-    first = jitcache.tree_stamp.__wrapped__((root,))
-    (root / "b.py").write_text("B = 2\n")
-    second = jitcache.tree_stamp.__wrapped__((root,))
-    (root / "a.py").write_text("A = 3\n")
-    assert len({first, second, jitcache.tree_stamp.__wrapped__((root,))}) == 3
+def test_the_stamp_follows_imports_and_nothing_else(tmp_path):
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    files = {"__init__.py": "", "a.py": "from .b import B\n", "b.py": "from pkg.c import C\nB = 1\n",
+             "c.py": "C = 2\n", "d.py": "D = 3\n"}
+    for name, text in files.items():
+        (pkg / name).write_text(text)
+    roots = (pkg.resolve(),)
+
+    def stamp():
+        jitcache.import_closure.cache_clear()
+        jitcache.source_stamp.cache_clear()
+        return jitcache.source_stamp((pkg / "a.py").resolve(), roots)
+
+    assert [f.name for f in jitcache.import_closure((pkg / "a.py").resolve(), roots)] == ["a.py", "b.py", "c.py"]
+    first = stamp()
+    (pkg / "d.py").write_text("D = 4\n")
+    assert stamp() == first  # not imported by a: no re-compile
+    (pkg / "c.py").write_text("C = 5\n")
+    assert stamp() != first  # imported through b
