@@ -21,9 +21,13 @@ import io
 import time
 from pathlib import Path
 
+import discrepancy
+import fdi
+import rig
+from gsa.cli import run_command
 from gsa.report import NEGLIGIBLE_ST, tied_ranking
 from sam.errors import UserError, output_folder
-from sam.plant import default_plant_path
+from sam.plant import default_plant_path, load_plant
 from sam.plotting import plot_recordings
 from sam.recording import write_recording
 from sam.scenario import run_scenario, scenario_from_table
@@ -97,8 +101,6 @@ def demo_command(args: argparse.Namespace) -> int:
 
 def _demo_gsa(out: Path) -> None:
     """Stage 2: both paper studies at reduced N, through the same command a user runs."""
-    from gsa.cli import run_command
-
     studies = default_plant_path().parents[1] / "gsa"
     for name in ("paper_parameters", "paper_leakage"):
         t0 = time.perf_counter()
@@ -117,10 +119,6 @@ def _demo_gsa(out: Path) -> None:
 def _demo_fdi(out: Path) -> None:
     """Stage 3: record a faulty run on the rig simulator (written apart from the model: its own
     equations, a closed position loop, transmitters and encoder) and replay it blind through the UKF."""
-    import fdi
-    import rig
-    from sam.plant import load_plant
-
     t0 = time.perf_counter()
     scenario = default_plant_path().parents[1] / "rig" / "offset_plus1pct_closed_loop.toml"
     rec = rig.record(*rig.load_rig_scenario(scenario))
@@ -133,10 +131,6 @@ def _demo_fdi(out: Path) -> None:
 def _demo_mismatch(out: Path) -> None:
     """Stage 4: a rig recording with concealed hose compliance and a load other than the plant
     file's, diagnosed blind against the nominal plant."""
-    import discrepancy
-    import rig
-    from sam.plant import load_plant
-
     t0 = time.perf_counter()
     scenario = default_plant_path().parents[1] / "rig" / DEMO_MISMATCH_SCENARIO
     rec = rig.record(*rig.load_rig_scenario(scenario))
