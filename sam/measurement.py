@@ -17,7 +17,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from .geometry import joint_angle, piston_position
-from .hydraulics import supply_flow_array
+from .supply import supply_pressure_array
 from .params import P
 
 ENCODER_RESOLUTION_RAD = np.deg2rad(0.007)  #: rad/pulse, Heidenhain 376 886-0B (Appendix 1)
@@ -97,11 +97,11 @@ def measure(states: dict[str, np.ndarray], params: np.ndarray, dt: float, sensor
 
 
 def supply_pressure(states: dict[str, np.ndarray], params: np.ndarray) -> np.ndarray:
-    """The supply pressure at the valve [Pa]: p_S less the droop R_supply times the flow drawn."""
-    if params[P.R_supply] == 0:
+    """The supply pressure at the valve [Pa]: p_S less the droop R_supply times the flow drawn, and
+    lower where a pump-limited supply's relief has shut (sam.supply)."""
+    if params[P.R_supply] == 0 and np.isinf(params[P.Q_pump]):
         return np.full_like(states["p_A"], params[P.p_S])
-    q = supply_flow_array(states["x_s"], states["p_A"], states["p_B"], params)
-    return params[P.p_S] - params[P.R_supply] * q
+    return supply_pressure_array(states["x_s"], states["p_A"], states["p_B"], params)
 
 
 def white_noise_std(a: np.ndarray) -> float:
