@@ -1,6 +1,6 @@
 """A pump-limited supply (sam.supply, Effects.Q_pump): a fixed pump behind a relief valve whose
-override is R_supply. Checked in closed form, neutral by default to the last bit, the same on one
-lane as on a block of lanes."""
+override is R_supply, checked in closed form (neutral by default to the last bit and the same on
+one lane as on a block of lanes: tests/test_sam_effects.py)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 import sam
 from sam import P, S
 from sam.constants import LPM
-from sam.dynamics import D, areas, derive, kernel_variant, rhs, step
+from sam.dynamics import D, areas, derive, rhs
 from sam.hydraulics import flow_coefficient, supply_flow, valve_flows
 from sam.measurement import supply_pressure
 from sam.supply import relief_cracking_pressure
@@ -103,62 +103,3 @@ def test_a_pump_limited_extension_moves_at_the_pump_flow_over_the_piston_area():
     compressed = (p[P.V_0A] + A_A * x_end) * dp / p[P.B_eff]
     assert dx == pytest.approx((12.0 * LPM * 3.0 - compressed) / A_A, rel=0.02)
     assert travel["ideal"][0] > 1.2 * dx
-
-
-# ------------------------------------------------------------------------------------ bit for bit
-
-
-def _batch(n: int, seed: int, **effects) -> tuple[np.ndarray, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    params = np.tile(PLANT.vector(), (n, 1))
-    box = {"m_L": (0.0, 800.0), "Q_N_PA": (3e-4, 5e-4), "Q_N_BT": (3e-4, 5e-4), **effects}
-    for name, (lo, hi) in box.items():
-        params[:, P[name]] = rng.uniform(lo, hi, n)
-    return params, sam.initial_state(params, rng.choice([0.0, 0.1, 0.25, 0.43], n))
-
-
-def _input(n_steps: int) -> np.ndarray:
-    t = np.arange(n_steps) * DT
-    return np.where(t < 0.4, 10.0, np.where(t < 0.9, -10.0, np.where(t < 1.3, 4.0 * np.sin(9 * t), 0.02)))
-
-
-def _states(res) -> np.ndarray:
-    return np.stack([res[c] for c in S.__members__])
-
-
-def _one_by_one(params, x0, u, scheme: str) -> np.ndarray:
-    out = np.empty((7, params.shape[0], len(u) + 1))
-    for i, p in enumerate(params):
-        d, ds, s = np.empty(len(D)), np.empty(7), x0[i].copy()
-        derive(p, d)
-        out[:, i, 0] = s
-        for k, uk in enumerate(u):
-            step(s, uk, p, d, DT, ds, 1, int(sam.SCHEMES[scheme]))
-            out[:, i, k + 1] = s
-    return out
-
-
-@pytest.mark.parametrize("scheme", ["euler", "heun"])
-def test_the_pump_on_lanes_is_the_scalar_step(scheme):
-    """35 runs with pumps of 8-30 L/min, reliefs of 0-1 MPa override and an underlap on some: the
-    lane kernel is the scalar step to the last bit, every state at every step."""
-    params, x0 = _batch(35, 21, Q_pump=(8 * LPM, 30 * LPM), R_supply=(0.0, 4e9), lap=(-0.01, 0.01))
-    assert kernel_variant(params) == (False, True)
-    u = _input(600)
-    lanes = _states(sam.simulate_batch(params, u, DT, x0=x0, scheme=scheme))
-    alone = _one_by_one(params, x0, u, scheme)
-    assert np.array_equal(lanes, alone)
-
-
-@pytest.mark.parametrize("scheme", ["euler", "heun"])
-def test_an_ideal_source_leaves_the_model_unchanged_to_the_last_bit(scheme):
-    """Q_pump = inf (the default): the general variant of the kernel, which evaluates the pump's share,
-    gives the nominal model's numbers to the last bit, and the plant's vector is the default's."""
-    assert np.array_equal(PLANT.replace(Q_pump=math.inf).vector(), PLANT.vector())
-    assert kernel_variant(PLANT.replace(Q_pump=20 * LPM).vector()[None, :]) == (False, True)
-    params, x0 = _batch(35, 22)
-    assert kernel_variant(params) == (False, False)
-    u = _input(600)
-    nominal = _states(sam.simulate_batch(params, u, DT, x0=x0, scheme=scheme))
-    general = _one_by_one(params, x0, u, scheme)
-    assert np.array_equal(nominal, general)
