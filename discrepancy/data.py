@@ -159,7 +159,8 @@ def sensor_limits(data: Prepared) -> list[str]:
     out = []
     if "pS" not in data.columns:
         out.append("no supply pressure (pS) is recorded: supply droop cannot be told from a valve flow limit or "
-                   "a transmitter lag by the chamber pressures alone; a pS transmitter at the valve settles it")
+                   "a transmitter lag by the chamber pressures alone, nor a pump's limit from a meter-in flow cap, nor "
+                   "the relief's override from a line loss; a pS transmitter at the valve settles the first two")
     if data.position == "theta":
         out.append("the position is the joint encoder's theta, turned into x through the plant's geometry: an error "
                    "of the geometry (lengths, level angle) shows in the position as well as in the load, and is "

@@ -24,8 +24,9 @@ from .ceiling import closest_library_effect, excess, noise_ceiling, short_of_cei
 from .commissioning import calibrate, calibration_params, commissioning_start
 from .floor import Floor, Specificity, specific, start_sensitive, step_floor
 from .library import Free, Hypothesis, format_value, library
+from .resolvable import resolvable
 from .settings import Settings
-from .simulation import MEAS_PARAMS, SIGNALS, SegmentSimulator, fits
+from .simulation import SIGNALS, SegmentSimulator, fits
 from .verdict import verdict_of
 
 #: A hypothesis is accepted when its BIC falls by more than this...
@@ -453,7 +454,7 @@ def _judge(split: Split, hyps: list[Hypothesis], res: FitResult, reference: FitR
     # held-out part (discrepancy.floor). Within the limit the rule is unchanged: a clean recording's
     # calibrated model is there, and an effect that helps on most segments may be fitting its error
     c.specificity = specific(split, res, reference, gate.floor, gate.n_seg_eff, gate.settings)
-    c.physical = _away_from_nominal(hyps, res) and _resolvable(hyps, res, split)
+    c.physical = _away_from_nominal(hyps, res) and resolvable(hyps, res, split.fit_sim.data.dt, gate.settings)
     sp, st = c.specificity, gate.settings
     closes = not short_of_ceiling(c.fit_after["mean"], gate.ceiling, st.excess_limit)
     c.accepted = evidence and c.physical and (sp.passed or (gate.short and sp.mostly and closes))
@@ -483,14 +484,6 @@ def _segment_delta_bic(split: Split, res: FitResult, reference: FitResult, part:
     rss = [segment_rss(evaluate(split, Model(r.params, (), r.meas), np.zeros((1, 0)), part)[0], n_seg)
            for r in (res, reference)]
     return segment_delta_bic(rss[0], rss[1], n_eff / split.n_segments("fit"), k)
-
-
-def _resolvable(hyps: list[Hypothesis], res: FitResult, split: Split) -> bool:
-    """A sensor lag or delay must be at least one sample interval: shorter ones are not resolvable from the
-    sampling itself (which instant a sample stands for, an encoder read within its pulse interval, the
-    smoothing of the segment starts all shift signals by a fraction of a sample)."""
-    dt = split.fit_sim.data.dt
-    return all(res.values[f.name] >= dt for h in hyps for f in h.params if f.name in MEAS_PARAMS)
 
 
 def _away_from_nominal(hyps: list[Hypothesis], res: FitResult) -> bool:

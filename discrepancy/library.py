@@ -154,12 +154,21 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
                   "a pilot stage that caps the flow itself (sam's Q_sat) flattens the flow against the pressure drop too",
         ),
         Hypothesis(
-            "supply_droop", "supply pressure droop with flow (pump limit, relief, accumulator)",
-            (Free("R_supply", 1e7, 1e12, True, "Pa s/m^3", "supply droop per flow"),),
-            "The supply pressure falls with the flow drawn.",
-            "inflow-side chamber pressure falls at high flow demand; velocity lower at high flow",
-            starts=tuple({"R_supply": r} for r in (3e8, 2e9, 1e10, 5e10)),
-            probe={"R_supply": 3e9},
+            "supply_droop", "supply pressure droop with flow (a pump behind a relief valve, an accumulator)",
+            (Free("Q_pump", 0.1 * Q_N, 4.0 * Q_N, True, "L/min", "pump delivery"),
+             Free("R_supply", 1e7, 1e12, True, "Pa s/m^3", "supply droop per flow (the relief's override)")),
+            "A fixed pump behind a relief valve: the supply pressure droops linearly with the flow drawn while "
+            "the relief passes the rest (its override, R_supply), then falls to whatever makes the valve pass "
+            "the pump's whole delivery (Q_pump) once the relief shuts. A pump larger than the valve can draw is "
+            "the plain linear droop.",
+            "inflow-side chamber pressure falls at high flow demand; velocity capped at Q_pump over the "
+            "inflow area, the cap higher retracting (annulus) than extending; the outflow side unaffected",
+            # the linear droop's starts (a pump beyond the valve's draw), then pumps the valve can outdraw
+            starts=(tuple({"Q_pump": 4.0 * Q_N, "R_supply": r} for r in (3e8, 2e9, 1e10, 5e10))
+                    + tuple({"Q_pump": Q_N * a, "R_supply": r} for a in (0.5, 0.75, 1.1) for r in (5e8, 2e9))),
+            probe={"Q_pump": 0.75 * Q_N, "R_supply": 2e9},
+            alike="without pS, a flow limit on the supply edges alone (a meter-in restriction, a pilot that caps "
+                  "the flow) caps the velocity alike; the relief's override and a line loss have the same droop",
         ),
         Hypothesis(
             "bypass_leakage", "laminar cylinder bypass leakage (A to B)",

@@ -176,7 +176,7 @@ def rates(y, u, p, d, j, leaks=True, effects=True, f=np.float64):
     leak faults are Eqs. (41)-(43); the optional effects of :class:`sam.params.Effects` enter
     through the hydraulics and friction functions; Eq. (7)'s R-dot term where the plant's
     ``[equations]`` keep it. ``leaks=False`` promises K_int = K_extA = K_extB = K_bypass = 0 and
-    ``effects=False`` lap >= 0, R_supply = 0, Q_sat = x_open = inf, air_fraction = 0, no seal terms
+    ``effects=False`` lap >= 0, R_supply = 0, Q_sat = x_open = Q_pump = inf, air_fraction = 0, no seal terms
     k_fric_dp, k_fric_rod and no R-dot term (:func:`kernel_variant`): the same numbers without the arithmetic that
     would give zeros. ``f`` is the float type of the arithmetic.
     """
@@ -190,7 +190,7 @@ def rates(y, u, p, d, j, leaks=True, effects=True, f=np.float64):
     if effects:
         Q_A, Q_B, G_A, G_B = valve_flows(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT, K_leak_PA, K_leak_AT,
                                          K_leak_PB, K_leak_BT, leak_band, lap, p[P.R_supply, j], p[P.Q_sat, j],
-                                         p[P.x_open, j], f)
+                                         p[P.x_open, j], p[P.Q_pump, j], f)
     else:
         Q_A, Q_B, G_A, G_B = valve_flows_ideal(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT, K_leak_PA,
                                                K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, f)

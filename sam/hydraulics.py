@@ -17,6 +17,7 @@ import numpy as np
 from .constants import KAPPA_AIR, LEAK_REFERENCE_DP, LPM, P_ATM, P_CAVITATION
 from .params import P
 from .simd import quot, sqrt, where
+from .supply import pump_limited, pump_share
 
 # error_model="numpy": IEEE results (inf, nan) instead of a zero-division check per division
 jit = numba.njit(cache=True, error_model="numpy")
@@ -133,17 +134,21 @@ def null_leakage(p_chamber, p_S, p_T, K_leak_in, K_leak_out):
 @jit_inline
 def valve_flows(x_s, p_A, p_B, offset, p_S, p_T, K_PA, K_AT, K_PB, K_BT,
                 K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band, lap, R_supply, Q_sat, x_open=math.inf,
-                f=np.float64):
+                Q_pump=math.inf, f=np.float64):
     """Eqs. (10)-(14): (Q_A, Q_B, G_A, G_B), the valve flows [m^3/s] into chambers A and B and,
     per chamber, the sum of the chord conductances q / dp [m^3/(s Pa)] of the valve paths that
     join it to the supply and the tank (the open metering edges, :func:`orifice_flow_conductance`,
     each opened at most ``x_open``: :func:`limited_openings`, and the laminar null leakage,
     :func:`null_leakage`). Every edge is evaluated (an underlapped spool opens all four);
-    :func:`valve_flows_ideal` is the same for a valve that opens at most two."""
+    :func:`valve_flows_ideal` is the same for a valve that opens at most two. The supply edges
+    together draw at most the pump's ``Q_pump`` (sam.supply; inf: an ideal source)."""
     a_PA_BT, a_PB_AT = limited_openings(x_s, offset, lap, x_open, f)
     q_PA, g_PA = orifice_flow_conductance(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat, f)
     q_AT, g_AT = _tank_edge(K_AT * a_PB_AT, p_A - p_T, Q_sat, f)
     q_PB, g_PB = orifice_flow_conductance(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat, f)
+    share = pump_share(q_PA, q_PB, Q_pump, f)
+    q_PA, g_PA = pump_limited(q_PA, g_PA, share, f)
+    q_PB, g_PB = pump_limited(q_PB, g_PB, share, f)
     q_BT, g_BT = _tank_edge(K_BT * a_PA_BT, p_B - p_T, Q_sat, f)
     return _with_null_leakage(q_PA - q_AT, q_PB - q_BT, g_PA + g_AT, g_PB + g_BT, x_s, p_A, p_B, offset, p_S, p_T,
                               K_leak_PA, K_leak_AT, K_leak_PB, K_leak_BT, leak_band)
@@ -196,12 +201,14 @@ def leak_conductance(q, dp, K, f=np.float64):
 
 
 @jit
-def supply_flow(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat, x_open=math.inf):
-    """Flow drawn from the supply through P->A and P->B [m^3/s] (for the droop of p_S)."""
+def supply_flow(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat, x_open=math.inf, Q_pump=math.inf):
+    """Flow drawn from the supply through P->A and P->B [m^3/s] (for the droop of p_S), at most the
+    pump's Q_pump (sam.supply)."""
     a_PA_BT, a_PB_AT = limited_openings(x_s, offset, lap, x_open)
     q_PA = orifice_flow(K_PA, a_PA_BT, p_S - p_A, R_supply, Q_sat)
     q_PB = orifice_flow(K_PB, a_PB_AT, p_S - p_B, R_supply, Q_sat)
-    return q_PA + q_PB
+    share = pump_share(q_PA, q_PB, Q_pump)
+    return pump_limited(q_PA, 0.0, share)[0] + pump_limited(q_PB, 0.0, share)[0]
 
 
 @jit
@@ -256,19 +263,20 @@ def inverse_capacitance(V, p, B_eff, air_fraction, C_hose, f=np.float64, air=Tru
     return quot(B, V + C_hose * B)  # = 1 / (V/B + C_hose), with one division
 
 
-def supply_flow_array(x_s, p_A, p_B, p):
-    """:func:`supply_flow` over trajectories (n,), for one parameter vector ``p``."""
+def supply_flow_array(x_s, p_A, p_B, p, pump=True):
+    """:func:`supply_flow` over trajectories (n,), for one parameter vector ``p``; ``pump=False``:
+    the flow the valve would draw from the relief's pressure without the pump limit."""
     K_PA = flow_coefficient(p[P.Q_N_PA], p[P.dp_N_PA])
     K_PB = flow_coefficient(p[P.Q_N_PB], p[P.dp_N_PB])
     return _supply_flow_loop(x_s, p_A, p_B, p[P.offset], p[P.p_S], K_PA, K_PB, p[P.lap], p[P.R_supply], p[P.Q_sat],
-                             p[P.x_open])
+                             p[P.x_open], p[P.Q_pump] if pump else math.inf)
 
 
 @jit
-def _supply_flow_loop(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat, x_open):
+def _supply_flow_loop(x_s, p_A, p_B, offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat, x_open, Q_pump):
     out = np.empty(x_s.shape[0])
     for k in range(x_s.shape[0]):
-        out[k] = supply_flow(x_s[k], p_A[k], p_B[k], offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat, x_open)
+        out[k] = supply_flow(x_s[k], p_A[k], p_B[k], offset, p_S, K_PA, K_PB, lap, R_supply, Q_sat, x_open, Q_pump)
     return out
 
 

@@ -17,8 +17,9 @@ import numpy as np
 from scipy.signal import lfilter
 
 from .geometry import joint_angle, piston_position
-from .hydraulics import supply_flow_array
+from .hydraulics import flow_coefficient, limited_openings, supply_flow_array
 from .params import P
+from .supply import supply_pressure as static_supply_pressure
 
 ENCODER_RESOLUTION_RAD = np.deg2rad(0.007)  #: rad/pulse, Heidenhain 376 886-0B (Appendix 1)
 PRESSURE_SENSOR_RANGE_PA = (0.0, 25e6)  #: Pa, Trafag 8891.74 / Druck PTX 1400 (Appendix 1)
@@ -97,11 +98,27 @@ def measure(states: dict[str, np.ndarray], params: np.ndarray, dt: float, sensor
 
 
 def supply_pressure(states: dict[str, np.ndarray], params: np.ndarray) -> np.ndarray:
-    """The supply pressure at the valve [Pa]: p_S less the droop R_supply times the flow drawn."""
-    if params[P.R_supply] == 0:
+    """The supply pressure at the valve [Pa]: p_S less the droop R_supply times the flow drawn, and
+    lower where a pump-limited supply's relief has shut (sam.supply)."""
+    if params[P.R_supply] == 0 and np.isinf(params[P.Q_pump]):
         return np.full_like(states["p_A"], params[P.p_S])
-    q = supply_flow_array(states["x_s"], states["p_A"], states["p_B"], params)
-    return params[P.p_S] - params[P.R_supply] * q
+    return supply_pressure_array(states["x_s"], states["p_A"], states["p_B"], params)
+
+
+def supply_pressure_array(x_s, p_A, p_B, p) -> np.ndarray:
+    """:func:`sam.supply.supply_pressure` over trajectories (n,) of one parameter vector ``p`` [Pa]. The open
+    supply edge is the one the spool opens (Eqs. (10)-(11)); with both open (an underlap) their
+    coefficients add and p_load is their coefficient-weighted chamber pressure."""
+    q_open = supply_flow_array(x_s, p_A, p_B, p, pump=False)
+    out = np.empty(len(q_open))
+    K_PA = flow_coefficient(p[P.Q_N_PA], p[P.dp_N_PA])
+    K_PB = flow_coefficient(p[P.Q_N_PB], p[P.dp_N_PB])
+    for i in range(len(q_open)):
+        a_A, a_B = limited_openings(x_s[i], p[P.offset], p[P.lap], p[P.x_open])
+        k_A, k_B = K_PA * a_A, K_PB * a_B
+        p_load = (k_A * p_A[i] + k_B * p_B[i]) / (k_A + k_B) if k_A + k_B > 0 else p[P.p_S]
+        out[i] = static_supply_pressure(q_open[i], p[P.p_S], p[P.R_supply], p[P.Q_pump], k_A + k_B, p_load)
+    return out
 
 
 def white_noise_std(a: np.ndarray) -> float:

@@ -103,13 +103,15 @@ class Effects:
     air_fraction: float = 0.0  #: 1, free-air volume fraction at atmospheric pressure
     lap: float = 0.0  #: 1, spool overlap (+, a deadband) or underlap (-), fraction of travel
     Q_sat: float = math.inf  #: m^3/s, flow limit of each valve notch
-    R_supply: float = 0.0  #: Pa s/m^3, supply pressure droop per flow drawn
+    R_supply: float = 0.0  #: Pa s/m^3, supply pressure droop per flow drawn (with a pump: the relief's override)
     K_bypass: float = 0.0  #: m^3/(s Pa), laminar cylinder bypass leakage A->B
     C_hose: float = 0.0  #: m^3/Pa, extra hose compliance on each chamber
     k_fric_p: float = 0.0  #: m^2, pressure-dependent Coulomb friction: F_C + k_fric_p (p_A + p_B)
     k_fric_dp: float = 0.0  #: m^2, piston-seal friction per pressure difference across it: + k_fric_dp |p_A - p_B|
     k_fric_rod: float = 0.0  #: m^2, rod-seal friction per rod-side pressure: + k_fric_rod p_B
     x_open: float = math.inf  #: 1, spool opening (fraction of travel) beyond which a notch's area stops growing
+    #: m^3/s, a fixed pump's delivery behind a relief valve that passes it all at p_S (its slope: R_supply)
+    Q_pump: float = math.inf
 
 
 @dataclass(frozen=True)

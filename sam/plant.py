@@ -34,7 +34,7 @@ _POSITIVE = {
     "Q_N_PA", "Q_N_AT", "Q_N_PB", "Q_N_BT", "dp_N_PA", "dp_N_AT", "dp_N_PB", "dp_N_BT",
     "leak_band", "K_u", "omega_n", "zeta", "p_S", "D_piston", "D_rod", "x_max",
     "V_0A", "V_0B", "B_eff", "F_C", "F_S", "v_s", "sigma_0", "L_1", "L_2", "L_3", "L",
-    "L_B", "m_B", "theta_max", "Q_sat", "x_open",
+    "L_B", "m_B", "theta_max", "Q_sat", "x_open", "Q_pump",
 }
 #: Parameters that must be >= 0.
 _NON_NEGATIVE = {
@@ -42,7 +42,7 @@ _NON_NEGATIVE = {
     "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p", "k_fric_dp", "k_fric_rod",
 }
 #: Limits whose neutral value is inf (no limit): the only parameters a plant file may give as inf.
-_UNLIMITED = {"Q_sat", "x_open"}
+_UNLIMITED = {"Q_sat", "x_open", "Q_pump"}
 #: The table of uncertain parameters, and the groups whose parameters it may name: a machine's
 #: physical values (the spool offset is a fault input, estimated by the FDI, so it is not among them).
 UNCERTAIN = "uncertain"

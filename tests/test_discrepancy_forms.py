@@ -1,6 +1,7 @@
 """The library's engineer's forms (docs/mismatch.md): a recording made by sam with seal friction on
-the pressure difference and the rod pressure, or with a valve opening limit, concealed is named for
-what it is, with its magnitude; and the forms are the library's, not a second model."""
+the pressure difference and the rod pressure, a valve opening limit, or a pump behind a relief valve
+concealed is named for what it is, with its magnitude; and the forms are the library's, not a second
+model. Entrained air that acts only inside the model's low-pressure gap is not resolvable."""
 
 from __future__ import annotations
 
@@ -8,11 +9,18 @@ import numpy as np
 import pytest
 
 import sam
-from discrepancy import diagnose, library
-from discrepancy.cases import CASES, make_recording
+from discrepancy import Settings, diagnose, library
+from discrepancy.cases import CASES, Case, make_recording
 from discrepancy.design import LOOK_ALIKE
+from discrepancy.fitting import FitResult
+from discrepancy.resolvable import resolvable
+from sam import P
+from sam.constants import KAPPA_AIR, LPM, P_ATM
+from sam.hydraulics import flow_coefficient
 
-CASE = {c.name: c for c in CASES}
+#: a 15 L/min pump behind a relief of 0.5 MPa override: the valve (24 L/min at its nominal drop) wants more
+PUMP = {"Q_pump": 15.0 * LPM, "R_supply": 0.5e6 / (15.0 * LPM)}
+CASE = {c.name: c for c in CASES} | {"pump": Case("pump", ("supply_droop",), PUMP, note="15 L/min pump, relief")}
 
 
 @pytest.fixture(scope="module")
@@ -34,8 +42,43 @@ def test_the_library_frees_the_engineer_s_forms(plant):
     assert by["flow_saturation"].params[0].hi > 1.0
 
 
+def test_the_supply_hypothesis_is_a_pump_behind_a_relief_and_holds_the_linear_droop(plant):
+    """supply_droop frees the pump's delivery and the relief's override; its largest pump delivers more
+    than the valve fully open can draw from p_S into an empty chamber, K_v sqrt(p_S) (Eq. (12)), so the
+    plain linear droop p_S - R q lies inside its box."""
+    h = {h.name: h for h in library(plant)}["supply_droop"]
+    assert [f.name for f in h.params] == ["Q_pump", "R_supply"]
+    p = plant.vector()
+    most = max(flow_coefficient(p[P.Q_N_PA], p[P.dp_N_PA]), flow_coefficient(p[P.Q_N_PB], p[P.dp_N_PB]))
+    assert h.params[0].hi > 1.25 * most * np.sqrt(p[P.p_S])  # the calibration's notch flows reach +25 %
+
+
+def test_air_acting_only_near_vacuum_is_not_resolvable(plant):
+    """At B_eff = 1.2 GPa the free-air fraction that softens the oil by 5 % at the gap's 0.2 MPa is
+    a* = (1/0.95 - 1) kappa p_abs / (B_eff (p_atm / p_abs)^(1/kappa)) = 4.0e-5: air just below it
+    is not resolvable, just above it is; the rule leaves other hypotheses alone."""
+    st = Settings()
+    p_abs = st.low_pressure_Pa + P_ATM
+    a_star = (1 / 0.95 - 1) * KAPPA_AIR * p_abs / (1.2e9 * (P_ATM / p_abs) ** (1 / KAPPA_AIR))
+    assert a_star == pytest.approx(4.0e-5, rel=0.02)
+    air = {h.name: h for h in library(plant)}["entrained_air"]
+    lap = {h.name: h for h in library(plant)}["spool_lap"]
+    params = plant.replace(B_eff=1.2e9).vector()
+
+    def fitted(name, value):
+        return FitResult((), {name: value}, params, np.zeros(2), 1.0, 1.0, 1)
+
+    assert not resolvable([air], fitted("air_fraction", 0.98 * a_star), 1e-3, st)
+    assert resolvable([air], fitted("air_fraction", 1.02 * a_star), 1e-3, st)
+    assert resolvable([lap], fitted("lap", 1e-4), 1e-3, st)
+
+
 @pytest.mark.parametrize("name, truth", [("flow_saturation", {"x_open": 0.4}),
-                                         ("pressure_friction", {"k_fric_dp": 1.5e-4})])
+                                         ("pressure_friction", {"k_fric_dp": 1.5e-4}),
+                                         pytest.param("pump", {"Q_pump": 15.0 * LPM}, marks=pytest.mark.xfail(
+                                             strict=True, reason="only the best start is optimised: here the "
+                                             "linear droop's (51 L/min, 1.4e10 Pa s/m^3), where the pump's "
+                                             "delivery has no gradient (docs/mismatch.md, Limits)"))])
 def test_a_concealed_engineer_s_form_is_named_first(plant, name, truth):
     """12 s of closed-loop recording (seed 3) from sam with the effect concealed (discrepancy/cases.py):
     the diagnosis names it first, its fit on the held-out segments improves, and the fitted

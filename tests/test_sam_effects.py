@@ -1,6 +1,7 @@
 """The library forms a hydraulics engineer expects (sam.params.Effects): seal friction on the
-pressure difference across the piston and on the rod-side pressure (k_fric_dp, k_fric_rod), and a
-valve opening limit (x_open). Each checked in closed form, neutral by default to the last bit, the
+pressure difference across the piston and on the rod-side pressure (k_fric_dp, k_fric_rod), a
+valve opening limit (x_open) and a pump behind a relief valve (Q_pump; closed forms in
+tests/test_sam_pump.py). Each checked in closed form, neutral by default to the last bit, the
 same on one lane as on a block of lanes."""
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import pytest
 
 import sam
 from sam import P, S
+from sam.constants import LPM
 from sam.dynamics import D, derive, kernel_variant, rhs, step
 from sam.friction import seal_pressure_rise
 from sam.hydraulics import flow_coefficient, limited_openings, supply_flow, valve_flows
@@ -122,9 +124,11 @@ def _one_by_one(params, x0, u, scheme: str) -> np.ndarray:
 
 @pytest.mark.parametrize("scheme", ["euler", "heun"])
 def test_the_new_effects_on_lanes_are_the_scalar_step(scheme):
-    """35 runs (a block and a part) with the seal terms and the opening limit drawn over the
-    library's range: the lane kernel is the scalar step to the last bit, every state at every step."""
-    params, x0 = _batch(35, 11, k_fric_dp=(0.0, 4e-4), k_fric_rod=(0.0, 2e-4), x_open=(0.2, 1.1))
+    """35 runs (a block and a part) with the seal terms, the opening limit and a pump of 8-30 L/min
+    behind a relief (override 0-1 MPa at 15 L/min) drawn over the library's range: the lane kernel is
+    the scalar step to the last bit, every state at every step."""
+    params, x0 = _batch(35, 11, k_fric_dp=(0.0, 4e-4), k_fric_rod=(0.0, 2e-4), x_open=(0.2, 1.1),
+                        Q_pump=(8 * LPM, 30 * LPM), R_supply=(0.0, 4e9))
     assert kernel_variant(params) == (False, True)
     u = _input(600)
     lanes = _states(sam.simulate_batch(params, u, DT, x0=x0, scheme=scheme))
@@ -134,10 +138,13 @@ def test_the_new_effects_on_lanes_are_the_scalar_step(scheme):
 
 @pytest.mark.parametrize("scheme", ["euler", "heun"])
 def test_neutral_new_effects_leave_the_model_unchanged_to_the_last_bit(scheme):
-    """At their defaults (0, 0, inf) the general variant of the kernel, which evaluates the new
-    terms, gives the nominal model's numbers (the variant without them) to the last bit; a plant
-    that names them at their defaults has the default's vector."""
-    assert np.array_equal(PLANT.replace(k_fric_dp=0.0, k_fric_rod=0.0, x_open=math.inf).vector(), PLANT.vector())
+    """At their defaults (0, 0, inf, inf: an ideal supply) the general variant of the kernel, which
+    evaluates the new terms, gives the nominal model's numbers (the variant without them) to the last
+    bit; a plant that names them at their defaults has the default's vector, and a pump alone needs
+    the general variant."""
+    assert np.array_equal(PLANT.replace(k_fric_dp=0.0, k_fric_rod=0.0, x_open=math.inf, Q_pump=math.inf).vector(),
+                          PLANT.vector())
+    assert kernel_variant(PLANT.replace(Q_pump=20 * LPM).vector()[None, :]) == (False, True)
     params, x0 = _batch(35, 12)
     assert kernel_variant(params) == (False, False)
     u = _input(600)
