@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.signal import lfilter
 
 import sam
 from sam import P, S
@@ -79,7 +80,6 @@ def reference_and_dither(duration: float, dt: float, rng: np.random.Generator, x
         ref[k:k + hold] = target
         k += hold
     # smooth the steps: a second-order prefilter of ~0.3 s
-    from scipy.signal import lfilter
     a = np.exp(-dt / 0.4)
     ref = lfilter([1 - a], [1, -a], lfilter([1 - a], [1, -a], ref, zi=[a * ref[0]])[0], zi=[a * ref[0]])[0]
     dither = np.zeros(n)

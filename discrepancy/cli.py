@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import sam
 from sam.errors import output_folder
 from sam.options import real
 
+from .diagnose import diagnose
 from .report import OUTPUT_FILES
 
 
@@ -35,10 +37,6 @@ def add_commands(subparsers) -> None:
 
 
 def handler(args: argparse.Namespace) -> int:
-    import sam
-
-    from .diagnose import diagnose
-
     out = output_folder(args.out, OUTPUT_FILES, args.force, create=False)  # before the work, not after it
     plant = sam.load_plant(args.plant)
     rec = sam.read_recording(args.recording).measured()

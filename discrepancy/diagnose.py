@@ -22,8 +22,10 @@ from .fitting import (FitResult, Model, Split, correlation_time, evaluate, fit_b
                       segment_scales, unweighted)
 from .ceiling import closest_library_effect, excess, noise_ceiling, short_of_ceiling
 from .commissioning import calibrate, calibration_params, commissioning_start
+from .generic import generic_route
 from .floor import Floor, Specificity, specific, start_sensitive, step_floor
 from .library import Free, Hypothesis, format_value, library
+from .report import write
 from .resolvable import resolvable
 from .settings import Settings
 from .simulation import SIGNALS, SegmentSimulator, fits
@@ -267,7 +269,6 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     # ---- generic route on what remains
     gen = None
     if generic:
-        from .generic import generic_route
         gen = generic_route(split, data, cal, calib, n_eff, hyps, settle=settings.start_decay_times)
     timings["generic_s"] = time.perf_counter() - t_start
     if gen and gen.get("significant") and not gen["in_library"]:
@@ -329,7 +330,6 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
                      "masks": masks, "energy": energy}
     timings["total_s"] = time.perf_counter() - t_start
     if out_dir is not None:
-        from .report import write
         write(report, Path(out_dir), figures=figures)
         timings["total_s"] = time.perf_counter() - t_start
     return report

@@ -14,6 +14,7 @@ measured signals with ``sam.measurement``'s sensor filters.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -157,6 +158,5 @@ HELDOUT: tuple[Case, ...] = (
 def materialise(case: Case) -> Case:
     """Stateful laws get a fresh instance per recording."""
     if case.law == "accumulator":
-        import dataclasses
         return dataclasses.replace(case, law=_accumulator_law())
     return case

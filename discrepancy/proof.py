@@ -9,6 +9,7 @@ the nominal plant; the ground truth is only used here, to score.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -17,6 +18,8 @@ import sam
 from discrepancy import diagnose
 
 from .cases import CASES, make_recording
+from .heldout import HELDOUT, materialise
+from .heldout2 import HELDOUT2, SEED
 
 
 def score(case, report) -> dict:
@@ -50,12 +53,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     args = ap.parse_args(argv)
     if args.set == "heldout":
-        from .heldout import HELDOUT, materialise
         cases = [materialise(c) for c in HELDOUT]
         if args.seed == 1:
             args.seed = 2
     elif args.set == "heldout2":
-        from .heldout2 import HELDOUT2, SEED
         cases = list(HELDOUT2)
         if args.seed == 1:
             args.seed = SEED
@@ -79,7 +80,6 @@ def main(argv=None) -> int:
               f"{r['held_before']:.1f} -> {r['held_cal']:.1f} -> {r['held_after']:.1f} | {r['time_s']:.1f} s |", flush=True)
     print(f"correct: {sum(r['ok'] for r in rows)}/{len(rows)}")
     if args.json:
-        import json
         args.json.write_text(json.dumps(rows, indent=1))
     return 0
 
