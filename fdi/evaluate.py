@@ -335,9 +335,10 @@ def markdown(s: dict) -> list:
         lines += [f"| {r['fault']} | {size_text(r['fault'], r['size'])} | {_pct(r['isolated_within_1s'])} | "
                   f"{_pct(r['bound_detectable'])} | {_pct(r['bound_isolable'])} [{_ci(r['bound_isolable_ci'])}] |"
                   for r in s["rows"]]
-    lines += ["", "'isolated within 1 s': a confirmed alarm at or after the onset and the bank naming the right fault "
-              "by 1 s after it. 'wrong isolations': decisions within 1 s that named another fault. Size errors are "
-              "relative, over the isolated runs; the size and its +-2 sigma band are the ones `fdi replay` reports."]
+    if s["rows"]:
+        lines += ["", "'isolated within 1 s': a confirmed alarm at or after the onset and the bank naming the right fault "
+                  "by 1 s after it. 'wrong isolations': decisions within 1 s that named another fault. Size errors are "
+                  "relative, over the isolated runs; the size and its +-2 sigma band are the ones `fdi replay` reports."]
     return lines
 
 
