@@ -10,7 +10,7 @@ from sam.errors import output_folder
 from sam.options import real
 
 from .diagnose import diagnose
-from .report import OUTPUT_FILES
+from .report import OUTPUT_FILES, console_lines
 
 
 def add_commands(subparsers) -> None:
@@ -43,8 +43,6 @@ def handler(args: argparse.Namespace) -> int:
     val = sam.read_recording(args.validate).measured() if args.validate else None
     report = diagnose(rec, plant, out, validate=val, seg_s=args.segment, figures=not args.no_figures,
                       plant_path=args.plant)
-    print(report.headline)
-    for w in report.warnings:
-        print(f"warning: {w}")
+    print("\n".join(console_lines(report)))
     print(f"report: {out / 'report.md'}  ({report.timings['total_s']:.1f} s)")
     return 0

@@ -29,7 +29,7 @@ from .report import write
 from .resolvable import resolvable
 from .settings import Settings
 from .simulation import SIGNALS, SegmentSimulator, fits
-from .verdict import verdict_of
+from .verdict import unscored_note, verdict_of
 
 #: A hypothesis is accepted when its BIC falls by more than this...
 BIC_STRONG = 10.0
@@ -103,6 +103,7 @@ class Report:
     limits: list[str] = field(default_factory=list)  # what the sensor set and sampling rate cannot tell apart
     plant_path: str | None = None  # the plant file, for the designed scenario
     shortfall: dict = field(default_factory=dict)  # the held-out noise ceiling and the calibrated model's excess
+    notes: list[str] = field(default_factory=list)  # what was left out of the judgement, said where it matters
     traces: dict = field(default_factory=dict)  # for figures
 
     @property
@@ -132,6 +133,7 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     plant = plant.replace(arm_rate_torque=settings.arm_rate_torque)
     timings = {}
     warnings: list[str] = []
+    notes: list[str] = []
     data = prepare(rec, plant, settings=settings)
     warnings.extend(filter(None, [missing_note(data)]))
     if validate is not None:
@@ -159,11 +161,9 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
     for sim in {id(s): s for s in (split.fit_sim, split.held_sim)}.values():
         unsure = start_sensitive(sim, start_params, settings)
         sim.unscore(unsure)
-        if unsure.any():
-            t0s = ", ".join(f"{sim.data.t[s]:.0f}" for s in sim.seg.starts[unsure])
-            warnings.append(f"{int(unsure.sum())} segment(s) of {sim.data.name} (from {t0s} s) are not scored: "
-                            f"moving their start by {1e3 * settings.start_shift_s:.0f} ms changes their error by more "
-                            f"than {100 * settings.start_sensitive_share:.0f} % (the oil is trapped at null)")
+        if unsure.any():  # a note, not a warning: report.console_lines says it where it matters
+            notes.append(unscored_note(sim.data.name, sim.data.t[sim.seg.starts[unsure]], len(unsure),
+                                       settings.start_shift_s))
     cal = calibrate(split, plant, calib, restart, settings)
     calibration = _calibration_changes(calib, nominal_values, cal)
     floor = step_floor(split, cal, settings)
@@ -324,7 +324,7 @@ def diagnose(rec: Recording, plant: Plant, out_dir: str | Path | None = None, va
         ranked=cands, chosen=chosen, generic=gen, warnings=warnings, timings=timings, n_eff=n_eff,
         segment_s=fsim.seg.length * data.dt, floor=floor, sureness=sureness, design=design,
         limits=sensor_limits(data), plant_path=str(plant_path) if plant_path is not None else None,
-        shortfall=shortfall,
+        shortfall=shortfall, notes=notes,
     )
     report.traces = {"split": split, "nominal": base, "calibrated": cal, "final": final, "residual": res,
                      "masks": masks, "energy": energy}

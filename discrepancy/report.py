@@ -56,6 +56,7 @@ def to_json(report) -> dict:
         "chosen": [_candidate_dict(c, 1) for c in report.chosen],
         "generic_route": report.generic,
         "warnings": report.warnings,
+        "notes": report.notes,
         "effective_samples_for_bic": report.n_eff,
         "step_floor": report.floor.as_dict() if report.floor else None,
         "noise_ceiling": report.shortfall,
@@ -76,6 +77,15 @@ def _fit_rows(table: dict) -> list[str]:
     return rows
 
 
+def console_lines(report) -> list[str]:
+    """What ``samfdi mismatch`` prints: the headline, the warnings, and the notes only when the
+    verdict claims a mismatch (an adequate model is not weakened by the segments left out)."""
+    lines = [report.headline] + [f"warning: {w}" for w in report.warnings]
+    if report.verdict not in ("adequate", "recalibrated"):
+        lines += [f"note: {n}" for n in report.notes]
+    return lines
+
+
 def to_markdown(report) -> str:
     L = [f"# Mismatch diagnosis: {Path(report.source).name}", "", f"**{report.headline}**", ""]
     verdict_words = {
@@ -85,6 +95,8 @@ def to_markdown(report) -> str:
     L += [f"Verdict: **{verdict_words.get(report.verdict, report.verdict)}**.", ""]
     if report.warnings:
         L += ["## Warnings", ""] + [f"- {w}" for w in report.warnings] + [""]
+    if report.notes:
+        L += ["## Notes", ""] + [f"- {n}" for n in report.notes] + [""]
     L += ["## Fit % (NRMSE, 100 = perfect)", "",
           f"Each {report.segment_s:g} s segment is simulated from the measured state at its start; every third "
           f"segment is held out"

@@ -5,8 +5,32 @@ from __future__ import annotations
 from . import locate as loc
 
 
+#: a calibration explains a mismatch only when it moves a value by more than this share of its
+#: nominal value (494 -> 494.02 kg is no mis-set load) ...
+RELATIVE_CHANGE = 0.05
+#: ... or, for a value whose nominal is 0 (the offset, a fraction of spool travel), by this much
+ABSOLUTE_CHANGE = 0.002
+
+
 def _significant_change(c: dict) -> bool:
-    return abs(c["change"]) > (0.05 if c["relative"] else 0.002)
+    if c["relative"]:
+        return abs(c["change"]) > RELATIVE_CHANGE
+    nominal = abs(c["nominal"])
+    return abs(c["change"]) > (RELATIVE_CHANGE * nominal if nominal else ABSOLUTE_CHANGE)
+
+
+def few(values, unit: str = "", shown: int = 5, fmt: str = "{:.0f}") -> str:
+    """A list an engineer can read: all of up to ``shown`` values, else the first few and how many more."""
+    words = [fmt.format(v) for v in values]
+    more = f" and {len(words) - shown} more" if len(words) > shown else ""
+    return f"{', '.join(words[:shown])}{unit}{more}"
+
+
+def unscored_note(name: str, starts_s, n_segments: int, shift_s: float) -> str:
+    """One plain sentence on the segments not scored because the oil is trapped at null."""
+    return (f"{len(starts_s)} of {n_segments} segments of {name} (starting at t = {few(starts_s, ' s')}) are not scored: the "
+            f"valve sits at null with the oil trapped, so their error is set by the start state (a {1e3 * shift_s:.0f} "
+            "ms shift changes it), not by the model")
 
 
 def verdict_of(chosen, calibration, gen, table, located, shortfall) -> tuple[str, str]:
@@ -59,4 +83,4 @@ def _where_words(located) -> str:
     return words[0].upper() + words[1:]
 
 
-__all__ = ["verdict_of"]
+__all__ = ["few", "unscored_note", "verdict_of"]

@@ -46,6 +46,7 @@ class Diagnosis:
     note: str = ""  #: what the status alone does not say
     isolation_time_s: float | None = None  #: when the bank named the fault [s]
     likelihood: dict = field(default_factory=dict)  #: the bank's evidence [nats] and the alarms it judged
+    detail: str = ""  #: the evidence behind the note, for whoever checks it (diagnosis.json only)
 
     def to_json(self) -> str:
         """diagnosis.json's text."""
@@ -95,6 +96,7 @@ class Verdict:
     isolation_time_s: float | None
     likelihood: dict
     note: str
+    detail: str = ""
 
 
 def judge(out: FilterOutput, th: Thresholds, stats: Statistics | None = None, baseline=None, rows=None,
@@ -266,7 +268,7 @@ def diagnose(out: FilterOutput, th: Thresholds | None = None, b: int = 0, stats:
         detection_time_s=(v.likelihood.get("alarm_s", alarms[names[0]]) if v.status != "healthy" and names
                           else nis_time),
         alarms=alarms, size=v.size, confidence=v.confidence, model_fit_alarm_s=nis_time, filter_health=health,
-        isolation_time_s=v.isolation_time_s, likelihood=v.likelihood,
+        isolation_time_s=v.isolation_time_s, likelihood=v.likelihood, detail=v.detail,
         thresholds={"drift_sigma": tt.drift, "h_sigma_s": dict(tt.h), "warmup_s": w.warmup_s,
                     "baseline": "reference recording" if baseline is not None else
                     f"own estimates over [{w.warmup_s:g}, {w.warmup_s + w.baseline_s:g}] s after the first motion "
@@ -344,18 +346,22 @@ def _alarm_record(out: FilterOutput, th: Thresholds, d: Decision) -> dict:
 
 
 def _withdrawn(out: FilterOutput, th: Thresholds, d: Decision, design: BankDesign) -> Verdict:
-    """A run none of whose alarms was confirmed: healthy, with the withdrawn alarms."""
+    """A run none of whose alarms was confirmed: healthy, one plain sentence as its note and the
+    evidence (times, nats, sizes) as its detail."""
     rec = _alarm_record(out, th, d)
+    n = len(rec["withdrawn_alarms_s"])
     times = ", ".join(f"{s:.3f}" for s in rec["withdrawn_alarms_s"])
     least = design.min_single_size
     growing = f", that lead still growing over {rec['confirm_persist_s']:g} s," if rec["confirm_persist_s"] else ""
-    note = (f"alarm(s) at t = {times} s withdrawn: in the {design.decision_window_s:g} s after each, no fault "
-            f"hypothesis explained the measurements better than the healthy model by {rec['confirm_nats']:.2g} nats"
-            f"{growing} with its fault parameter moved by at least {leak_lpm(least['K_int']):.2g} L/min or "
-            f"{100 * least['offset']:.2g} % (largest lead {d.standing.lead_max:.1f} nats in the last window)")
+    detail = (f"alarm(s) at t = {times} s withdrawn: in the {design.decision_window_s:g} s after each, no fault "
+              f"hypothesis explained the measurements better than the healthy model by {rec['confirm_nats']:.2g} nats"
+              f"{growing} with its fault parameter moved by at least {leak_lpm(least['K_int']):.2g} L/min or "
+              f"{100 * least['offset']:.2g} % (largest lead {d.standing.lead_max:.1f} nats in the last window)")
     if d.episodes_capped:
-        note += f"; the tests were not restarted after {rec['episodes_capped']} withdrawn alarms"
-    return Verdict("healthy", [], {}, {}, None, {"best_minus_healthy_nats": d.naming.llr_none, **rec}, note)
+        detail += f"; the tests were not restarted after {rec['episodes_capped']} withdrawn alarms"
+    note = (f"{n} brief alarm{' was' if n == 1 else 's were'} checked and withdrawn: no fault fits better than "
+            "healthy (details in diagnosis.json)")
+    return Verdict("healthy", [], {}, {}, None, {"best_minus_healthy_nats": d.naming.llr_none, **rec}, note, detail)
 
 
 def _revised(out: FilterOutput, th: Thresholds, d: Decision, lik: dict, early: str) -> Verdict:

@@ -34,6 +34,7 @@ from .isolation import margin_for
 from .metrics import fault_row, healthy_rates, write_json
 from .montecarlo import TUNE
 from .offline import own_noise, prepare
+from .recording import decimation, study_rate
 from .scoring import bank_decisions, window_maxima
 from .statistics import statistics
 from .thresholds import Thresholds
@@ -134,8 +135,21 @@ def score(rec, lab: Label, plant: Plant, thresholds: Thresholds | None, cfg: Fil
 def check_rate(th: Thresholds) -> None:
     """Refuse thresholds for another rate than the scoring's (its windows count 1 ms samples)."""
     if abs(th.derived.sample_dt_s / TUNE.dt - 1.0) > 1e-9:
-        raise UserError(f"--thresholds: derived for {1 / th.derived.sample_dt_s:.4g} Hz recordings; fdi evaluate "
-                        f"scores at {1 / TUNE.dt:g} Hz only ({th.derived.source})")
+        raise UserError(f"--thresholds: derived for {1 / th.derived.sample_dt_s:.4g} Hz recordings, but fdi evaluate "
+                        f"scores {1 / TUNE.dt:g} Hz recordings only: leave --thresholds out (the shipped ones) or "
+                        f"give thresholds derived at {1 / TUNE.dt:g} Hz")
+
+
+def check_scoring_rate(rec, name: str) -> None:
+    """Refuse a recording the scoring cannot take, saying what the user can do instead: the
+    scores count 1 ms samples (a whole multiple of 1000 Hz is kept 1 in k, as replay does)."""
+    if decimation(rec, TUNE.dt) is not None:
+        return
+    rate, supported = 1.0 / rec.dt, study_rate(rec)
+    alone = (f"; to diagnose it alone: `samfdi fdi thresholds --sample-rate {supported:.5g} --out th{supported:.0f}`, "
+             f"then `samfdi fdi replay {name} --thresholds th{supported:.0f}/thresholds.toml`" if supported else "")
+    raise UserError(f"{name}: sampled at {rate:.4g} Hz, but fdi evaluate scores {1 / TUNE.dt:g} Hz recordings only "
+                    f"(or a whole multiple): move it out of the folder{alone}")
 
 
 def healthy_onset(th: Thresholds, n: int, seed: int) -> np.ndarray:
@@ -160,8 +174,10 @@ def check_recordings(paths: list[Path], plant: Plant, thresholds: Thresholds | N
     """Refuse, before any filtering, a recording that cannot be labelled or that replay would
     refuse (:func:`fdi.offline.prepare`): one line naming it, so that a long evaluation never
     stops halfway on a bad file."""
-    for path in paths:  # the labels first: they need no model
-        label(read_recording(path), str(path))
+    for path in paths:  # the labels and rates first: they need no model
+        rec = read_recording(path)
+        label(rec, str(path))
+        check_scoring_rate(rec, str(path))
     for path in paths:
         prepare(read_recording(path), plant, thresholds, plant_name="the plant")
 
@@ -282,32 +298,31 @@ def markdown(s: dict) -> list:
              "(fdi/rates.py): **met** where the whole interval lies on the target's side, **not met** where it "
              "lies on the other, else undecided at this many runs.", ""]
     if "healthy" in s:
-        h = s["healthy"]
-        lines += [f"**False alarms** (an alarm the bank confirmed, per healthy run of {h['duration_s'][0]:.0f}-"
-                  f"{h['duration_s'][1]:.0f} s): {h['false_alarms']} of {h['runs']} = {_pct(h['false_alarm_rate'])} % "
-                  f"[{_ci(h['false_alarm_ci'])}], <= {100 * s['false_alarm_level']:g} %: **{h['false_alarm_verdict']}**; "
-                  "by load third " + ", ".join(_pct(v) for v in h["false_alarm_by_load"])
-                  + f" %; runs with any CUSUM alarm (confirmed or withdrawn) {_pct(h['trigger_rate'])} %.", ""]
+        lines += [_healthy_line(s), ""]
     if "alarm_before_onset" in s:
         b = s["alarm_before_onset"]
         lines += [f"**Alarms before the onset** (fault runs; false alarms, never detections): {b['alarms']} of "
                   f"{b['runs']} = {_pct(b['rate'])} % [{_ci(b['ci'])}].", ""]
     bins = [f"{int(a)}-{int(round(b))} kg" for a, b in s["load_bins_kg"]]
-    lines += ["| fault | size | runs | isolated within 1 s [95 %] | vs 95 % | alarm before onset | wrong isolations "
-              "| mean delay [s] | median size error [95 %] | within +-10 % | truth inside +-2 sigma [95 %] | vs 90 % | "
-              + " | ".join(f"isolated {b}" for b in bins) + " |",
-              "|" + "---|" * (12 + len(bins))]
-    for r in s["rows"]:
-        lines.append(
-            f"| {r['fault']} | {size_text(r['fault'], r['size'])} | {r['runs']} | {_pct(r['isolated_within_1s'])} "
-            f"[{_ci(r['isolated_ci'])}] | {r['isolated_verdict']} | {r['alarm_before_onset_runs']} "
-            f"| {r['wrong_decisions']} of {r['decisions_within_1s']} | "
-            f"{_delay(r['mean_delay_s'])} | "
-            f"{_pct(r.get('size_error_median'))} [{_ci(r.get('size_error_ci', [math.nan] * 2))}] | "
-            f"{r.get('size_error_verdict', '-')} | {_pct(r.get('size_inside_2sigma'))} "
-            f"[{_ci(r.get('size_inside_ci', [math.nan] * 2))}] | {r.get('size_inside_verdict', '-')} | "
-            + " | ".join(_pct(v) for v in r["isolated_by_load"]) + " |")
-    if "bound" in s:
+    if not s["rows"]:
+        lines += ["No fault runs in the folder (no recording has a true_* column with a fault): only false alarms "
+                  "are scored."]
+    else:
+        lines += ["| fault | size | runs | isolated within 1 s [95 %] | vs 95 % | alarm before onset | wrong isolations "
+                  "| mean delay [s] | median size error [95 %] | within +-10 % | truth inside +-2 sigma [95 %] | vs 90 % | "
+                  + " | ".join(f"isolated {b}" for b in bins) + " |",
+                  "|" + "---|" * (12 + len(bins))]
+        for r in s["rows"]:
+            lines.append(
+                f"| {r['fault']} | {size_text(r['fault'], r['size'])} | {r['runs']} | {_pct(r['isolated_within_1s'])} "
+                f"[{_ci(r['isolated_ci'])}] | {r['isolated_verdict']} | {r['alarm_before_onset_runs']} "
+                f"| {r['wrong_decisions']} of {r['decisions_within_1s']} | "
+                f"{_delay(r['mean_delay_s'])} | "
+                f"{_pct(r.get('size_error_median'))} [{_ci(r.get('size_error_ci', [math.nan] * 2))}] | "
+                f"{r.get('size_error_verdict', '-')} | {_pct(r.get('size_inside_2sigma'))} "
+                f"[{_ci(r.get('size_inside_ci', [math.nan] * 2))}] | {r.get('size_inside_verdict', '-')} | "
+                + " | ".join(_pct(v) for v in r["isolated_by_load"]) + " |")
+    if "bound" in s and s["rows"]:
         b = s["bound"]
         lines += ["", "**What the data carry** (`--bound`, fdi/bound.py): a bank started at the TRUE onset, which no "
                   f"detector knows; 'isolable': its evidence for the true fault beats {b['threshold_nats']:.1f} nats (what "
@@ -320,10 +335,26 @@ def markdown(s: dict) -> list:
         lines += [f"| {r['fault']} | {size_text(r['fault'], r['size'])} | {_pct(r['isolated_within_1s'])} | "
                   f"{_pct(r['bound_detectable'])} | {_pct(r['bound_isolable'])} [{_ci(r['bound_isolable_ci'])}] |"
                   for r in s["rows"]]
-    lines += ["", "'isolated within 1 s': a confirmed alarm at or after the onset and the bank naming the right fault "
-              "by 1 s after it. 'wrong isolations': decisions within 1 s that named another fault. Size errors are "
-              "relative, over the isolated runs; the size and its +-2 sigma band are the ones `fdi replay` reports."]
+    if s["rows"]:
+        lines += ["", "'isolated within 1 s': a confirmed alarm at or after the onset and the bank naming the right fault "
+                  "by 1 s after it. 'wrong isolations': decisions within 1 s that named another fault. Size errors are "
+                  "relative, over the isolated runs; the size and its +-2 sigma band are the ones `fdi replay` reports."]
     return lines
+
+
+def _healthy_line(s: dict) -> str:
+    """The false-alarm paragraph of evaluation.md: one duration when the runs are equally long,
+    the rate of each load third that has runs."""
+    h = s["healthy"]
+    lo, hi = h["duration_s"]
+    length = f"{lo:.0f} s" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} s"
+    thirds = [f"{int(a)}-{int(round(b))} kg: {_pct(v)} %" for (a, b), v in zip(s["load_bins_kg"], h["false_alarm_by_load"])
+              if v is not None and math.isfinite(v)]
+    by_load = f"; by load ({', '.join(thirds)})" if len(thirds) > 1 else ""
+    return (f"**False alarms** (an alarm the bank confirmed, per healthy run of {length}): {h['false_alarms']} of "
+            f"{h['runs']} = {_pct(h['false_alarm_rate'])} % [{_ci(h['false_alarm_ci'])}], <= "
+            f"{100 * s['false_alarm_level']:g} %: **{h['false_alarm_verdict']}**{by_load}; runs with any CUSUM alarm "
+            f"(confirmed or withdrawn) {_pct(h['trigger_rate'])} %.")
 
 
 def write_report(out_dir: Path, s: dict) -> None:

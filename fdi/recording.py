@@ -315,30 +315,44 @@ def check_observable(inp: FilterInput, plant: Plant, name: str = "plant", record
                 f"{recording}; check p_S, B_eff, V_0A, V_0B and the valve flows")
 
 
+def decimation(rec: Recording, dt_s: float, checks: InputChecks = CHECKS) -> int | None:
+    """k when ``rec`` is sampled k whole times faster than every ``dt_s`` (k = 1: at that rate,
+    within ``rate_tolerance``), None when it is not."""
+    ratio = dt_s / rec.dt
+    k = max(1, round(ratio))
+    return k if abs(ratio / k - 1.0) <= checks.rate_tolerance else None
+
+
+def study_rate(rec: Recording, checks: InputChecks = CHECKS) -> float | None:
+    """The rate below 1000 Hz that ``samfdi fdi thresholds --sample-rate`` can derive thresholds
+    for and ``rec`` is sampled at, None when there is none (the studies sample every whole ms)."""
+    rate = 1.0 / rec.dt
+    supported = 1000.0 / max(1, round(rec.dt * 1e3))
+    ok = rate < 1000.0 and abs(supported / rate - 1.0) <= checks.rate_tolerance and supported >= checks.min_sample_rate_Hz
+    return supported if ok else None
+
+
 def at_thresholds_rate(rec: Recording, th: Thresholds, checks: InputChecks = CHECKS) -> tuple[Recording, int]:
     """The recording at the rate its thresholds were derived for (sigma and h depend on it), and
     the decimation k: as it is (k = 1) within ``rate_tolerance`` of that rate, every k-th sample
     when it is a whole k times faster; otherwise a UserError that names what to do."""
-    tol, min_rate = checks.rate_tolerance, checks.min_sample_rate_Hz
-    dt_th, source = th.derived.sample_dt_s, th.derived.source
-    if not (rec.dt <= (1.0 + tol) / min_rate):
+    min_rate = checks.min_sample_rate_Hz
+    if not (rec.dt <= (1.0 + checks.rate_tolerance) / min_rate):
         raise UserError(f"{rec.source or 'recording'}: 't': sampled every {rec.dt * 1e3:.3g} ms ({1 / rec.dt:.4g} Hz); "
                         f"the filter needs {min_rate:g} Hz or faster to follow the chamber pressures")
-    ratio = dt_th / rec.dt
-    k = max(1, round(ratio))
-    if abs(ratio / k - 1.0) <= tol:
-        if k == 1:
-            return rec, 1
+    k = decimation(rec, th.derived.sample_dt_s, checks)
+    if k == 1:
+        return rec, 1
+    if k is not None:
         return Recording(rec.t[::k], {c: v[::k] for c, v in rec.signals.items()}, {}, rec.metadata, rec.source), k
-    rate, ms = 1.0 / rec.dt, rec.dt * 1e3
-    supported = 1000.0 / max(1, round(ms))  # the studies sample every whole ms
-    if rate < 1000.0 and abs(supported / rate - 1.0) <= tol and supported >= min_rate:
+    supported = study_rate(rec, checks)
+    if supported is not None:
         todo = (f"derive thresholds for it with `samfdi fdi thresholds --sample-rate {supported:.5g} --out DIR` "
                 "and pass --thresholds DIR/thresholds.toml")
     else:
         todo = "resample it to 1000 Hz, or to 1000 / k Hz (k = 2 ... 10) and derive thresholds for that rate"
-    raise UserError(f"{rec.source or 'recording'}: 't': sampled at {rate:.4g} Hz, but the thresholds were derived "
-                    f"for {1 / dt_th:.4g} Hz ({source}); {todo}")
+    raise UserError(f"{rec.source or 'recording'}: 't': sampled at {1 / rec.dt:.4g} Hz, but the thresholds are "
+                    f"for {1 / th.derived.sample_dt_s:.4g} Hz; {todo}")
 
 
 def excitation_caveat(inp: FilterInput, checks: InputChecks = CHECKS) -> str:

@@ -381,3 +381,55 @@ def test_mismatch_never_overwrites_a_report_and_checks_the_folder_first(tmp_path
     with read_only_folder() as folder:
         line = one_line_error(samfdi("mismatch", str(path), "--out", str(folder / "m")))
         assert f"{folder}/m: --out: cannot create it in {folder}" in line
+
+
+_LOCATED = {"signal_share": {"pA": 0.5, "pB": 0.3, "x": 0.2}, "regimes": []}
+_TABLE = {"calibrated": {"held": {"mean": 95.0}}}
+
+
+def _calibration_row(name, label, nominal, value, relative, unit):
+    change = (value - nominal) / nominal if relative else value - nominal
+    return {"parameter": name, "label": label, "nominal": nominal, "calibrated": value, "change": change,
+            "relative": relative, "at_bound": False, "text": f"{label}: {nominal:g} {unit} -> {value:g} {unit}"}
+
+
+@pytest.mark.parametrize("cal, verdict", [
+    (_calibration_row("m_L", "load mass", 494.0, 494.02, False, "kg"), "adequate"),  # nothing was mis-set
+    (_calibration_row("m_L", "load mass", 494.0, 500.0, False, "kg"), "adequate"),  # 1 %: within a weighing
+    (_calibration_row("Q_N_PA", "nominal flow PA", 4e-4, 8e-4, False, "L/min"), "recalibrated"),  # SI m^3/s, doubled
+    (_calibration_row("m_L", "load mass", 494.0, 560.0, False, "kg"), "recalibrated"),
+    (_calibration_row("offset", "spool offset", 0.0, 0.003, False, "%"), "recalibrated"),  # nominal 0: absolute
+    (_calibration_row("B_eff", "bulk modulus", 1.2e9, 1.23e9, True, "Pa"), "adequate"),
+])
+def test_a_calibration_that_moves_nothing_is_not_the_explanation(cal, verdict):
+    """A load mass calibrated from 494 kg to 494.02 kg is not "the mismatch was a mis-set nominal
+    value" (the headline read "recalibrating load mass: 494 kg -> 494 kg"); 66 kg more is, and so is
+    a doubled notch flow given in m^3/s (0.0004 more, below the 0.002 meant for the offset)."""
+    from discrepancy.verdict import verdict_of
+
+    got, head = verdict_of([], [cal], None, _TABLE, _LOCATED, {})
+    assert got == verdict, head
+    assert ("mis-set" in head) == (verdict == "recalibrated") and (cal["text"] in head) == (verdict == "recalibrated")
+
+
+def test_segments_left_out_are_said_once_briefly_and_only_where_they_matter():
+    """100 segments not scored on a 5 min run: one note naming the count and the first few start
+    times (not all 100), in report.md and report.json; the console shows it only when the verdict
+    claims a mismatch, never on an adequate model."""
+    from types import SimpleNamespace
+
+    from discrepancy.report import console_lines
+    from discrepancy.verdict import unscored_note
+
+    note = unscored_note("long", np.arange(100) * 3.0, 300, 0.005)
+    assert note.startswith("100 of 300 segments of long (starting at t = 0, 3, 6, 9, 12 s and 95 more)") and len(note) < 250
+    assert "trapped" in note
+    rep = SimpleNamespace(headline="The model is adequate.", warnings=[], notes=[note], verdict="adequate")
+    assert console_lines(rep) == ["The model is adequate."]
+    rep.verdict = "named"
+    assert console_lines(rep) == ["The model is adequate.", f"note: {note}"]
+
+
+def test_the_trapped_oil_note_is_a_note_not_a_warning(air_report):
+    rep = json.loads((air_report / "report.json").read_text())
+    assert "notes" in rep and not any("trapped" in w for w in rep["warnings"])

@@ -6,6 +6,7 @@ resumed, and the population's draws (seeded, labelled, two forms apart)."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -130,6 +131,38 @@ def test_cli_refuses_bad_folders_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "over_range.csv" in err and "'pA'" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()  # refused before any work
+
+
+def test_a_recording_at_another_rate_gets_advice_that_works(tmp_path, capsys):
+    """A 500 Hz recording in the folder: one line saying evaluate scores 1000 Hz only and what the
+    user can do (move it out; replay it alone with 500 Hz thresholds), never "pass --thresholds" to
+    evaluate, which refuses 500 Hz thresholds in one line that says what to give instead."""
+    folder = tmp_path / "recs"
+    write_recording(folder / "r500.csv", _recording(3000, dt=2e-3, true_offset=np.zeros(3000)))
+    assert main(["fdi", "evaluate", str(folder), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "r500.csv" in err and "500 Hz" in err, err
+    assert "move it out of the folder" in err and "samfdi fdi replay" in err and "--sample-rate 500" in err, err
+    assert "leakage GSA" not in err  # how the shipped thresholds were made is not the user's next step
+    shipped = Thresholds.shipped()
+    th500 = replace(shipped, derived=replace(shipped.derived, sample_dt_s=2e-3))
+    with pytest.raises(UserError) as e:
+        evaluate.check_rate(th500)
+    assert "leave --thresholds out" in str(e.value) and "leakage GSA" not in str(e.value), str(e.value)
+
+
+def test_healthy_only_evaluation_reads_naturally():
+    """Three healthy 20 s runs at 494 kg: one duration (not "20-20 s"), no rate for the empty load
+    thirds ("-"), and a sentence instead of a fault table with only its header."""
+    runs = {f"h{i}": {**_chunk(None, 0.0, -1, None, k0=20000, m_L=494.0), "duration_s": np.array([20.0])}
+            for i in range(3)}
+    md = "\n".join(evaluate.markdown(evaluate.summarise(runs, Thresholds.shipped())))
+    assert "per healthy run of 20 s)" in md and "20-20 s" not in md, md
+    assert "-, " not in md and ", -" not in md, md
+    assert "| fault |" not in md and "No fault runs" in md and "'isolated within 1 s'" not in md, md
+    mixed = {**runs, "h9": {**_chunk(None, 0.0, -1, None, k0=20000, m_L=100.0), "duration_s": np.array([10.0])}}
+    md = "\n".join(evaluate.markdown(evaluate.summarise(mixed, Thresholds.shipped())))
+    assert "per healthy run of 10-20 s)" in md and "0-267 kg: 0.0 %, 267-534 kg: 0.0 %)" in md, md
 
 
 @pytest.mark.slow

@@ -814,6 +814,10 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     assert len(withdrawn) >= 2 and withdrawn == sorted(withdrawn)
     assert all(b - a >= DESIGN.decision_window_s for a, b in zip(withdrawn, withdrawn[1:]))  # restarted after each window
     assert healthy.detection_time_s is None and "withdrawn" in healthy.note
+    # the console's note is one plain sentence; the evidence in nats is diagnosis.json's detail
+    assert healthy.note.startswith(f"{len(withdrawn)} brief alarms were checked and withdrawn: no fault fits better")
+    assert "nats" not in healthy.note and "nats" in healthy.detail and healthy.headline() == "healthy"
+    assert '"detail": ' in healthy.to_json()
     faulty = diagnose(out, th, 1, stats)
     assert faulty.status == "fault" and faulty.isolated == ["K_extA"]
     assert all(s < 6.0 for s in faulty.likelihood["withdrawn_alarms_s"])
