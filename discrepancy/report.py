@@ -7,6 +7,9 @@ import math
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
+
+from sam.errors import UserError
 
 from .simulation import SIGNALS
 
@@ -193,11 +196,6 @@ def _and(words: list[str]) -> str:
 
 
 def figures(report, out: Path) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     tr = report.traces
     split = tr["split"]
     names = []
@@ -218,8 +216,8 @@ def figures(report, out: Path) -> list[str]:
             pr, meas = model.build(th[None, :])
             traces["generic term"] = sim.simulate(pr, meas if np.any(meas) else None, full=True,
                                                   time_varying=model.tv(th[None, :], sim))
-        fig, axes = plt.subplots(2 * len(SIGNALS), 1, figsize=(11, 11), sharex=True, layout="constrained",
-                                 gridspec_kw={"height_ratios": [3, 1.3] * len(SIGNALS)})
+        fig = Figure(figsize=(11, 11), layout="constrained")
+        axes = fig.subplots(2 * len(SIGNALS), 1, sharex=True, height_ratios=[3, 1.3] * len(SIGNALS))
         t_seg = np.concatenate([d.t[s:s + sim.seg.length] for s in sim.seg.starts])
         idx_seg = np.concatenate([np.arange(s, min(s + sim.seg.length, d.n)) for s in sim.seg.starts])
         cut = np.r_[np.diff(t_seg) > 1.5 * d.dt, False]  # no line across a segment boundary
@@ -247,12 +245,12 @@ def figures(report, out: Path) -> list[str]:
                      + "s" * (len(traces) > 1) + "; residual beneath each signal", fontsize=11)
         name = "overlay.png" if part == "fit" else "overlay_validation.png"
         fig.savefig(out / name, dpi=110)
-        plt.close(fig)
         names.append(name)
     # residual with located windows
     d = split.fit_sim.data
     res = tr["residual"]
-    fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True)
+    fig = Figure(figsize=(11, 5.5))
+    axes = fig.subplots(2, 1, sharex=True)
     for k in SIGNALS:
         axes[0].plot(d.t, res[k], lw=0.6, label=k)
     for w in report.located["windows"]:
@@ -271,14 +269,11 @@ def figures(report, out: Path) -> list[str]:
     axes[1].set_title("operating regimes where the residual concentrates")
     fig.tight_layout()
     fig.savefig(out / "residual.png", dpi=110)
-    plt.close(fig)
     names.append("residual.png")
     return names
 
 
 def write(report, out: Path, figures: bool = True) -> None:
-    from sam.errors import UserError
-
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:

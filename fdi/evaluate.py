@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from chunkstore import MANIFEST, Store, StoreError, compute
 from sam import Plant, UserError, read_recording
@@ -367,11 +368,8 @@ def write_report(out_dir: Path, s: dict) -> None:
 def figure(path: Path, s: dict) -> None:
     """Isolated within 1 s against the fault's size, each case with its 95 % interval as a bar:
     leaks (L/min at 10 MPa) on the left, offsets (% of spool travel) on the right."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), sharey=True)
+    fig = Figure(figsize=(10, 4.2))
+    axes = fig.subplots(1, 2, sharey=True)
     style = {"K_int": ("C0", "o"), "K_extA": ("C1", "s"), "K_extB": ("C2", "^"), "offset": ("C3", "D")}
     for fault, (color, marker) in style.items():
         rows = [r for r in s["rows"] if r["fault"] == fault]
@@ -405,4 +403,3 @@ def figure(path: Path, s: dict) -> None:
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
-    plt.close(fig)

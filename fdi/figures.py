@@ -8,7 +8,11 @@ from __future__ import annotations
 import textwrap
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Rectangle
 
 from .states import STATE_NAMES, leak_lpm
 
@@ -24,21 +28,14 @@ TESTS = {"K_int": "internal-leak test", "K_extA": "external-leak A test", "K_ext
 FIGURE_CLIP = 5.0  #: the replay figure shows statistic / threshold up to this
 
 
-def _pyplot():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def _wrapped(text: str, width: int = 125) -> str:
     """``text`` broken into lines of at most ``width`` characters (about the figure's width)."""
     return "\n".join(textwrap.fill(line, width) for line in text.splitlines())
 
 
-def _patch(plt, **style):
+def _patch(**style):
     """A legend handle for a shaded span."""
-    return plt.Rectangle((0, 0), 1, 1, lw=0, **style)
+    return Rectangle((0, 0), 1, 1, lw=0, **style)
 
 
 def replay_figure(path: Path, t, r, th, truth: dict | None = None, truth_t=None) -> None:
@@ -46,12 +43,11 @@ def replay_figure(path: Path, t, r, th, truth: dict | None = None, truth_t=None)
     thresholds ``th``: the leak and offset estimates with their +-2 sigma bands (and the true sizes
     when the recording has ``true_*`` columns: ``truth``, over ``truth_t``), each test's statistic
     over its threshold, the alarms and the decision, with a legend that says how to read them."""
-    plt = _pyplot()
     out, res, stats, diag = r.output, r.residuals, r.statistics, r.diagnosis
     truth = truth or {}
-    with plt.rc_context(FONT):
-        fig, axes = plt.subplots(3, 1, figsize=(12, 10), sharex=True, height_ratios=(1.1, 0.8, 1.1),
-                                 layout="constrained")
+    with matplotlib.rc_context(FONT):
+        fig = Figure(figsize=(12, 10), layout="constrained")
+        axes = fig.subplots(3, 1, sharex=True, height_ratios=(1.1, 0.8, 1.1))
         ax = axes[0]
         for name, (c, words) in LEAKS.items():
             j = STATE_NAMES.index(name)
@@ -69,22 +65,21 @@ def replay_figure(path: Path, t, r, th, truth: dict | None = None, truth_t=None)
         if "true_offset" in truth:
             ax2.plot(truth_t, 100 * truth["true_offset"], color="C3", ls="--", lw=2.0)
         ax2.set_ylabel("spool offset [% of travel]")
-        band = [_patch(plt, color="0.6", alpha=0.3, label="shaded: +-2 sigma of the estimate")]
-        known = [plt.Line2D([], [], color="k", ls="--", lw=2.0, label="dashed: the true size (true_* columns)")] \
+        band = [_patch(color="0.6", alpha=0.3, label="shaded: +-2 sigma of the estimate")]
+        known = [Line2D([], [], color="k", ls="--", lw=2.0, label="dashed: the true size (true_* columns)")] \
             if any(k in truth for k in ("true_K_int", "true_K_extA", "true_K_extB", "true_offset")) else []
         for a in (ax, ax2):
             handles = a.get_legend_handles_labels()[0] + band + known
             a.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-        _statistics_panel(plt, axes[2], t, res, stats, th)
-        marks = _decision_lines(plt, axes, diag)
+        _statistics_panel(axes[2], t, res, stats, th)
+        marks = _decision_lines(axes, diag)
         axes[2].set_xlabel("time [s]")
         fig.legend(handles=marks, loc="outside lower left", ncol=len(marks), frameon=False)
         fig.suptitle(_wrapped(diag.headline()), fontsize=12, x=0.01, ha="left")
         fig.savefig(path, dpi=DPI)
-        plt.close(fig)
 
 
-def _statistics_panel(plt, ax, t, res: dict, stats: dict, th) -> None:
+def _statistics_panel(ax, t, res: dict, stats: dict, th) -> None:
     """Each test's statistic over its threshold, the alarm level at 1, and the spans where the
     tests are held (pressures pinned) or count only large excursions (long strokes)."""
     h = th.test.h
@@ -97,22 +92,22 @@ def _statistics_panel(plt, ax, t, res: dict, stats: dict, th) -> None:
         ax.text(0.99, 0.97, f"clipped at {FIGURE_CLIP:g} (largest {top:.3g})", transform=ax.transAxes,
                 ha="right", va="top", fontsize=9)
     ax.axhline(1.0, color="k", ls="--", lw=1.2)
-    extra = [plt.Line2D([], [], color="k", ls="--", lw=1.2, label="alarm level: a test alarms where it crosses 1")]
+    extra = [Line2D([], [], color="k", ls="--", lw=1.2, label="alarm level: a test alarms where it crosses 1")]
     if "pinned" in res and res["pinned"][0].any():
         ax.fill_between(t, 0, 1, where=res["pinned"][0] > 0, transform=ax.get_xaxis_transform(), color="0.85", lw=0)
-        extra.append(_patch(plt, color="0.85", label="grey: pressures at supply / tank,\nthose tests held"))
+        extra.append(_patch(color="0.85", label="grey: pressures at supply / tank,\nthose tests held"))
     if "long_stroke" in res and res["long_stroke"][0].any():
         ax.fill_between(t, 0, 1, where=res["long_stroke"][0] > 0, transform=ax.get_xaxis_transform(), color="C9",
                         alpha=0.12, lw=0)
         which = " and ".join(th.test.long_stroke_params)
-        extra.append(_patch(plt, color="C9", alpha=0.25, label=f"blue: long stroke, {which}\n"
+        extra.append(_patch(color="C9", alpha=0.25, label=f"blue: long stroke, {which}\n"
                                                          f"tests count only > {th.test.long_stroke_drift:g} sigma"))
     ax.set_ylabel("test statistic / its threshold")
     ax.legend(handles=ax.get_legend_handles_labels()[0] + extra, loc="upper left", bbox_to_anchor=(1.01, 1.0),
               borderaxespad=0)
 
 
-def _decision_lines(plt, axes, diag) -> list:
+def _decision_lines(axes, diag) -> list:
     """Draw the alarms and the decision on every panel; their legend handles."""
     lik, marks = diag.likelihood, []
     styles = {"alarm": {"color": "r", "lw": 1.2}, "withdrawn": {"color": "0.45", "lw": 1.0, "ls": "--"},
@@ -132,8 +127,8 @@ def _decision_lines(plt, axes, diag) -> list:
             for a in axes:
                 a.axvline(ta, **styles[kind])
         if ts:
-            marks.append(plt.Line2D([], [], **styles[kind], label=words[kind]))
-    return marks or [plt.Line2D([], [], color="none", label="vertical lines: none (no alarm)")]
+            marks.append(Line2D([], [], **styles[kind], label=words[kind]))
+    return marks or [Line2D([], [], color="none", label="vertical lines: none (no alarm)")]
 
 
 #: the tune figure's panels: (fault, sign of the size, title)
@@ -146,9 +141,9 @@ def rates_figure(path: Path, m: dict, false_alarm_level: float, target: float, i
     runs detected, and detected and isolated, within 1 s of the onset against the fault's size, and
     the false alarms per healthy run; each rate k of n runs with its ``interval(k, n)`` as a bar,
     against the ``target`` rate and the stated ``false_alarm_level``."""
-    plt = _pyplot()
-    with plt.rc_context(FONT):
-        fig, axes = plt.subplots(2, 3, figsize=(13, 8.5), layout="constrained")
+    with matplotlib.rc_context(FONT):
+        fig = Figure(figsize=(13, 8.5), layout="constrained")
+        axes = fig.subplots(2, 3)
         for ax, (fault, sign, title) in zip(axes.flat, RATE_PANELS):
             rows = sorted((r for r in m["rows"] if r["fault"] == fault and np.sign(r["size"]) == sign),
                           key=lambda r: abs(r["size"]))
@@ -177,7 +172,6 @@ def rates_figure(path: Path, m: dict, false_alarm_level: float, target: float, i
         fig.suptitle(f"fdi tune: the share of runs, {n_case} or more per fault and size, that a fault was detected "
                      "(and isolated) within 1 s of its onset; bars: exact 95 % intervals", x=0.01, ha="left")
         fig.savefig(path, dpi=DPI)
-        plt.close(fig)
 
 
 def _false_alarm_panel(ax, m: dict, level: float) -> None:
@@ -217,12 +211,12 @@ def signatures_figure(path: Path, rows: list, quantities: dict, phases: dict) ->
     (``quantities``: table key -> words with unit), each cell coloured by the effect over the
     largest |effect| on that quantity in the whole table and labelled with its value where that is
     not negligible."""
-    plt = _pyplot()
     keys = list(quantities)
     scale = np.maximum(np.abs(np.array([[r[k] for k in keys] for r in rows], dtype=float)).max(axis=0), 1e-30)
     panels = list(dict.fromkeys((r["motion"], r["phase"]) for r in rows))
-    with plt.rc_context(FONT):
-        fig, axes = plt.subplots(2, 2, figsize=(17, 13), layout="constrained")
+    with matplotlib.rc_context(FONT):
+        fig = Figure(figsize=(17, 13), layout="constrained")
+        axes = fig.subplots(2, 2)
         order = {f: i for i, f in enumerate(dict.fromkeys(r["fault"] for r in rows))}
         for ax, (motion, phase) in zip(axes.flat, panels):
             mine = sorted((r for r in rows if (r["motion"], r["phase"]) == (motion, phase)),
@@ -247,4 +241,3 @@ def signatures_figure(path: Path, rows: list, quantities: dict, phases: dict) ->
                      "without it; cell: the change, in the column's unit (blank: under 5 % of the column's largest)",
                      x=0.01, ha="left")
         fig.savefig(path, dpi=DPI)
-        plt.close(fig)

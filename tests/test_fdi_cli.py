@@ -146,18 +146,14 @@ def test_read_only_and_existing_output_folders(healthy_csv, tmp_path):
     assert all((tmp_path / "done" / n).read_text() == "mine" for n in ("diagnosis.json", "signatures.md"))
 
 
-def test_replay_figure_draws_the_true_size_and_explains_itself(tmp_path, monkeypatch):
+def test_replay_figure_draws_the_true_size_and_explains_itself(tmp_path, saved_figures):
     """replay.png of a recording with true_* columns (a 1 L/min leak out of A from 2 s) draws the
     true size as read from them, in L/min at 10 MPa, over the estimate; its legends say what the
     shading, the dashed alarm level and the vertical lines are, and name the tests in words (no
     "notch_flow jump / h"), in type readable at the size the figure is shown."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from fdi import K_PER_LPM, replay_recording
     from fdi.synth import profile
 
-    monkeypatch.setattr(plt, "close", lambda fig=None: None)  # keep the figure to look at it
     rec = _recording()
     t = rec.t
     true = profile("step", K_PER_LPM, t, t0=2.0)
@@ -165,8 +161,7 @@ def test_replay_figure_draws_the_true_size_and_explains_itself(tmp_path, monkeyp
     rec = Recording(t, {**rec.signals, "pA": faulty.inp.pA[0], "pB": faulty.inp.pB[0], "theta": faulty.inp.pos[0]},
                     {"true_K_extA": true}, {})
     d = replay_recording(rec, load_plant(), tmp_path / "r")
-    fig = plt.gcf()
-    plt.close("all")
+    fig, = saved_figures
     leaks = fig.axes[0]
     dashed = [ln for ln in leaks.get_lines() if ln.get_linestyle() == "--"]
     assert len(dashed) == 1

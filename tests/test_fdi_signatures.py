@@ -65,26 +65,21 @@ def test_written_files(rows, tmp_path):
     assert "stalled" in text and text.count("\n| ") == len(rows) + 1
 
 
-def test_figure_has_a_titled_map_per_motion_and_phase(tmp_path, monkeypatch):
+def test_figure_has_a_titled_map_per_motion_and_phase(tmp_path, saved_figures):
     """signatures.png: one heat map per motion and phase (not one of 60 rows), titled, its rows
     the faults in words by load (stalled ones marked), each cell the effect over the largest
     |effect| on its quantity in the whole table (hand-made, seeded rows)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
 
     from fdi.signatures import FAULTS, LOADS, MOTIONS, PHASES, QUANTITIES
 
-    monkeypatch.setattr(plt, "close", lambda fig=None: None)  # keep the figure to look at it
     rng = np.random.default_rng(3)
     table = [{"fault": f, "motion": mo, "load_kg": m, "phase": ph, "v_healthy_mm_s": 1.0,
               "stalled": "yes" if (mo, m) == ("extend", 800.0) else "no",
               **{q: float(rng.normal(0, 10)) for q in QUANTITIES}}
              for mo in MOTIONS for m in LOADS for f in FAULTS for ph in PHASES]
     write_signatures(table, tmp_path)
-    fig = plt.gcf()
-    plt.close("all")
+    fig, = saved_figures
     maps = {ax.get_title(): ax for ax in fig.axes if ax.images}
     assert set(maps) == {"extend, transient (first 0.3 s after the fault)", "extend, steady (last 0.5 s)",
                          "retract, transient (first 0.3 s after the fault)", "retract, steady (last 0.5 s)"}

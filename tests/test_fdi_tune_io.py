@@ -305,22 +305,16 @@ def test_metrics_md_tables_with_units_and_no_exclusive_column(tmp_path):
     assert "--reference" not in md  # a --bound tune calibrates nothing
 
 
-def test_rates_figure_shows_each_rate_with_its_interval(tmp_path, monkeypatch):
+def test_rates_figure_shows_each_rate_with_its_interval(tmp_path, saved_figures):
     """rates.png (was roc.png, 17 near-identical curves): one panel per fault with the detected and
     the detected-and-isolated share of runs against size, each point k / n with its exact
     interval as a bar (K_int 0.5 L/min: 4 of 5 isolated), and a panel of false alarms per healthy
     run with theirs against the stated level."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    monkeypatch.setattr(plt, "close", lambda fig=None: None)  # keep the figure to look at it
     jobs, tag, chunks = _hand_made_chunks(False)
     d = chunks[tune.chunk_key(next(j for j in jobs if j[0] == "healthy"), tag)]
     d["max"][:1, 0, 2], d["conf_k"][0] = 2.0, 5000  # one false alarm of 10
     m = tune.summarise(tmp_path, tune.gather(chunks, jobs, tag), Thresholds.shipped())
-    fig = plt.gcf()
-    plt.close("all")
+    fig = saved_figures[-1]
     assert (tmp_path / "rates.png").stat().st_size > 10_000 and not (tmp_path / "roc.png").exists()
     panels = {ax.get_title(): ax for ax in fig.axes}
     assert set(panels) == {"internal leak, A to B (K_int)", "external leak out of A (K_extA)",
