@@ -17,20 +17,25 @@ import dataclasses
 import math
 import os
 import re
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import scipy.io
 
-from sam.errors import UserError, where
+from sam.errors import where
 
-SIGNALS = ("t", "u", "pA", "pB", "x", "theta", "pS", "v", "xs")  # known columns, SI units
-REQUIRED = ("t", "u", "pA", "pB")  # plus one of POSITIONS
-POSITIONS = ("x", "theta")
-TRUTH_PREFIX = "true_"
-PRESSURES = ("pA", "pB", "pS")
+from .recording_csv import read_csv
+from .recording_fields import (
+    POSITIONS, PRESSURES, REQUIRED, SIGNALS, TRUTH_PREFIX, RecordingError, RecordingWarning, at, keep_known,
+    parse_metadata,
+)
+
+__all__ = [  # the format's fields are re-exported: readers of this module find them here
+    "POSITIONS", "PRESSURES", "REQUIRED", "SIGNALS", "TRUTH_PREFIX", "Recording", "RecordingError",
+    "RecordingWarning", "read_recording", "write_recording",
+]
+
 
 # Plausibility limits for the "unit obviously wrong" checks. They are far from
 # any real value in the right unit and close to typical values in the wrong one.
@@ -43,14 +48,6 @@ SAMPLING_TOLERANCE = 0.01  # each step within 1 % of the median step
 
 _MAT_DESCRIPTION = "description"
 _TRUTH_NAME = re.compile(r"true_[A-Za-z0-9_]*")  # must also be a valid MATLAB variable name
-
-
-class RecordingError(UserError):
-    """A recording file (or a recording about to be written) is unusable."""
-
-
-class RecordingWarning(UserWarning):
-    """Something in a recording was ignored, e.g. an unknown column."""
 
 
 @dataclass(frozen=True, eq=False)  # eq=False: arrays have no single truth value
@@ -156,44 +153,6 @@ def _to_recording(columns: dict[str, np.ndarray], metadata: dict[str, str], path
     )
 
 
-def _keep_known(names: list[str], path: Path) -> list[str]:
-    """The names we use; warn once about the rest (the spec says ignore, not refuse)."""
-    unknown = [n for n in names if not _is_known(n)]
-    if unknown:
-        listed = ", ".join(f"'{n}'" for n in unknown)
-        warnings.warn(f"{path}: ignoring unknown column(s) {listed}", RecordingWarning, stacklevel=4)
-    return [n for n in names if _is_known(n)]
-
-
-def _is_known(name: str) -> bool:
-    return name in SIGNALS or name.startswith(TRUTH_PREFIX)
-
-
-# CSV ------------------------------------------------------------------
-
-
-def _read_csv(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], list[int], list[str]]:
-    from .recording_csv import read_csv  # imported here: that module imports this one
-
-    return read_csv(path)
-
-
-def _parse_metadata(lines: list[str]) -> dict[str, str]:
-    """'# key: value' lines -> dict. A repeated key continues the value on a new line.
-
-    A '#' line without ':' is a plain comment and is skipped.
-    """
-    metadata: dict[str, str] = {}
-    for line in lines:
-        key, sep, value = line[1:].partition(":")
-        key = key.strip()
-        if not sep or not key:
-            continue
-        value = value.strip()
-        metadata[key] = f"{metadata[key]}\n{value}" if key in metadata else value
-    return metadata
-
-
 # MAT ------------------------------------------------------------------
 
 
@@ -202,7 +161,7 @@ def _read_mat(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], None, 
     variables = _load_mat(path)
     _check_not_a_struct(variables, path)
     metadata = _mat_metadata(variables.pop(_MAT_DESCRIPTION, None), path)
-    columns = {name: _mat_vector(name, variables[name], path) for name in _keep_known(list(variables), path)}
+    columns = {name: _mat_vector(name, variables[name], path) for name in keep_known(list(variables), path)}
     return columns, metadata, None, list(variables)
 
 
@@ -260,7 +219,7 @@ def _mat_metadata(value: np.ndarray | None, path: Path) -> dict[str, str]:
     text = "\n".join(str(row).rstrip() for row in value.reshape(-1))
     lines = text.splitlines()
     if lines and all(_is_metadata_line(ln) for ln in lines):
-        return _parse_metadata(lines)
+        return parse_metadata(lines)
     return {_MAT_DESCRIPTION: text}
 
 
@@ -269,7 +228,7 @@ def _is_metadata_line(line: str) -> bool:
     return line.startswith("#") and bool(sep) and bool(key.strip())
 
 
-_READERS = {".csv": _read_csv, ".mat": _read_mat}
+_READERS = {".csv": read_csv, ".mat": _read_mat}
 
 
 # ---------------------------------------------------------------- checks
@@ -325,26 +284,26 @@ def _check_lengths(columns: dict[str, np.ndarray], label: str) -> None:
 def _check_finite_or_nan(name: str, values: np.ndarray, label: str, line_of: list[int] | None) -> None:
     bad = np.flatnonzero(np.isinf(values))
     if bad.size:
-        raise RecordingError(f"{_at(label, name, bad[0], line_of)}: infinite value ({values[bad[0]]:g})")
+        raise RecordingError(f"{at(label, name, bad[0], line_of)}: infinite value ({values[bad[0]]:g})")
 
 
 def _check_time(t: np.ndarray, label: str, line_of: list[int] | None) -> None:
     nan = np.flatnonzero(np.isnan(t))
     if nan.size:
-        raise RecordingError(f"{_at(label, 't', nan[0], line_of)}: time is missing (NaN); only signals may have gaps")
+        raise RecordingError(f"{at(label, 't', nan[0], line_of)}: time is missing (NaN); only signals may have gaps")
     step = np.diff(t)
     back = np.flatnonzero(step <= 0)
     if back.size:
         i = back[0] + 1
         raise RecordingError(
-            f"{_at(label, 't', i, line_of)}: time not strictly increasing ({t[i]:.9g} s after {t[i - 1]:.9g} s)"
+            f"{at(label, 't', i, line_of)}: time not strictly increasing ({t[i]:.9g} s after {t[i - 1]:.9g} s)"
         )
     median = np.median(step)
     off = np.flatnonzero(np.abs(step - median) > SAMPLING_TOLERANCE * median)
     if off.size:
         i = off[0] + 1
         raise RecordingError(
-            f"{_at(label, 't', i, line_of)}: non-uniform sampling: step {step[i - 1]:.6g} s "
+            f"{at(label, 't', i, line_of)}: non-uniform sampling: step {step[i - 1]:.6g} s "
             f"differs from the median step {median:.6g} s by more than 1 %"
         )
 
@@ -377,7 +336,7 @@ def _check_u_range(u: np.ndarray, label: str, line_of: list[int] | None) -> None
     over = np.flatnonzero(np.abs(np.nan_to_num(u)) > U_MAX_V)
     if over.size:
         i = over[0]
-        raise RecordingError(f"{_at(label, 'u', i, line_of)}: {u[i]:g} V is out of range, expected -10..+10 V")
+        raise RecordingError(f"{at(label, 'u', i, line_of)}: {u[i]:g} V is out of range, expected -10..+10 V")
 
 
 def _peak(values: np.ndarray | None) -> float:
@@ -386,12 +345,6 @@ def _peak(values: np.ndarray | None) -> float:
         return 0.0
     finite = np.abs(values[np.isfinite(values)])
     return float(finite.max()) if finite.size else 0.0
-
-
-def _at(label: str, column: str, i: int, line_of: list[int] | None) -> str:
-    """Location of sample index i: data row (1-based) and, for CSV, the file line."""
-    line = f", line {line_of[i]}" if line_of is not None else ""
-    return f"{where(label, column)} (data row {i + 1}{line})"
 
 
 # ---------------------------------------------------------------- writing

@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from .errors import where
-from .recording import (
+from .recording_fields import (
     RecordingError,
     RecordingWarning,
-    _at,
-    _keep_known,
-    _parse_metadata,
+    at,
+    keep_known,
+    parse_metadata,
 )
 
 #: field texts that mean a missing sample besides an empty field and 'nan': R's write.csv writes
@@ -38,11 +38,11 @@ def read_csv(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], list[in
     while lines and not lines[-1].strip():  # blank trailing lines are allowed
         lines.pop()
     header_at = _find_header(lines, path)
-    metadata = _parse_metadata([ln for ln in lines[:header_at] if ln.strip()])
+    metadata = parse_metadata([ln for ln in lines[:header_at] if ln.strip()])
     names = _parse_header(lines[header_at], path, header_at + 1)
     data_lines = lines[header_at + 1 :]
     line_of = list(range(header_at + 2, header_at + 2 + len(data_lines)))
-    known = _keep_known([n for n in names if n], path)
+    known = keep_known([n for n in names if n], path)
     table = _fast_table(data_lines, len(names))
     if table is not None:
         return {name: table[:, names.index(name)].copy() for name in known}, metadata, line_of, names
@@ -139,7 +139,7 @@ def _parse_column(name: str, texts: list[str], label: str, line_of: list[int]) -
     if i == 0 and len(texts) > 1 and _is_number(texts[1]):  # text over numbers: a units or second header row
         hint = ("; a row of units or names under the header? the format's units are SI (docs/recordings.md): "
                 "delete the row, or make it a '# units: ...' line above the header")
-    raise RecordingError(f"{_at(label, name, i, line_of)}: non-numeric value '{texts[i].strip()}'{hint}") from None
+    raise RecordingError(f"{at(label, name, i, line_of)}: non-numeric value '{texts[i].strip()}'{hint}") from None
 
 
 def _number(text: str) -> float:
