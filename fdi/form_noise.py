@@ -51,8 +51,8 @@ import functools
 import numpy as np
 from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
-from sam import P
-from sam.dynamics import areas, stroke_ends
+from sam import D, P, derive
+from sam.dynamics import N_DERIVED, areas, stroke_ends
 from sam.geometry import piston_position
 
 from .states import POS_X
@@ -137,11 +137,13 @@ def supply_inflows(x_s: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.
     """(Q_A, Q_B) (B, T) [m^3/s]: the supply's flow into chambers A and B at tank pressure through
     the metering edges P->A and P->B of Eqs. (10)-(12), K_v (x_s + offset) sqrt(p_S - p_T), at spool
     positions x_s (B, T) [1] (0 through an edge that is closed)."""
-    p = lambda name: params[:, P[name]][:, None]  # noqa: E731
-    opening = x_s + p("offset")
-    head = np.sqrt(np.maximum(p("p_S") - p("p_T"), 0.0))
-    return (p("Q_N_PA") / np.sqrt(p("dp_N_PA")) * np.maximum(opening, 0.0) * head,
-            p("Q_N_PB") / np.sqrt(p("dp_N_PB")) * np.maximum(-opening, 0.0) * head)
+    derived = np.empty((len(params), N_DERIVED))
+    for row, d in zip(params, derived):
+        derive(row, d)  # the notches' K_v of Eq. (12), as the model's step has them
+    opening = x_s + params[:, P.offset, None]
+    head = np.sqrt(np.maximum(params[:, P.p_S] - params[:, P.p_T], 0.0))[:, None]
+    return (derived[:, D.K_PA, None] * np.maximum(opening, 0.0) * head,
+            derived[:, D.K_PB, None] * np.maximum(-opening, 0.0) * head)
 
 
 def floor_variance(floor: np.ndarray, rate: np.ndarray, cap: np.ndarray, dt: float) -> np.ndarray:
