@@ -109,7 +109,7 @@ def _bench_long_recording(plant, duration_s: float = 180.0) -> None:
     import tempfile
 
     from sam import Recording, read_recording, write_recording
-    from sam import recording as recording_module
+    from sam import recording_csv as csv_reader
 
     t = np.arange(int(round(duration_s * 1e3)) + 1) * 1e-3
     u = input_signal("sine", t, amplitude=3.0, frequency=1.0 / 40.0)
@@ -119,10 +119,10 @@ def _bench_long_recording(plant, duration_s: float = 180.0) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = write_recording(Path(tmp) / "long.csv", Recording(t, sig, source="bench"))
         ours = _median(lambda: read_recording(path))
-        fast_table = recording_module._fast_table
-        recording_module._fast_table = lambda lines, n: None  # the field-by-field reader alone
+        fast_table = csv_reader._fast_table
+        csv_reader._fast_table = lambda lines, n: None  # the field-by-field reader alone
         careful = _median(lambda: read_recording(path), 1)
-        recording_module._fast_table = fast_table
+        csv_reader._fast_table = fast_table
         gen = _median(lambda: np.genfromtxt(path, delimiter=",", names=True), 1)
         print(f"read a {duration_s:g} s CSV recording ({len(t)} rows): ours {ours:.2f} s, np.genfromtxt {gen:.2f} s "
               f"({gen / ours:.1f}x), field by field {careful:.2f} s ({careful / ours:.1f}x)")
