@@ -48,21 +48,48 @@ def _module_file(dotted: str, roots: dict[str, Path]) -> Path | None:
     return None
 
 
-def _imports(path: Path, roots: dict[str, Path]) -> set[Path]:
-    """The project modules ``path`` imports (``import a.b``, ``from a import b``, relative forms)."""
-    package = list(path.relative_to(_root_of(path, roots).parent).with_suffix("").parts[:-1])
-    found: set[Path] = set()
+@lru_cache(maxsize=None)
+def _import_statements(path: Path, roots: tuple[Path, ...]) -> tuple[tuple[str, str | None, str], ...]:
+    """(module, name, bound as) of each import in ``path``, relative forms resolved: ``import a.b``
+    gives ("a.b", None, "a"), ``from .m import n as k`` gives ("pkg.m", "n", "k"). Parsed once per
+    process, as every kernel's closure shares most files."""
+    package = list(path.relative_to(_root_of(path, {r.name: r for r in roots}).parent).with_suffix("").parts[:-1])
+    found = []
     for node in ast.walk(ast.parse(path.read_bytes())):
-        names = []
         if isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
+            found += [(a.name, None, a.asname or a.name.split(".")[0]) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
                 base = ".".join(package[: len(package) - node.level + 1] + ([base] if base else []))
-            names = [base] + [f"{base}.{a.name}" for a in node.names]  # `from pkg import module`
-        found.update(f for f in (_module_file(n, roots) for n in names if n) if f is not None)
-    return found
+            found += [(base, a.name, a.asname or a.name) for a in node.names]
+    return tuple(found)
+
+
+def _defining_file(module: str, name: str, roots: dict[str, Path]) -> Path | None:
+    """The project file whose code ``from module import name`` brings in: the submodule
+    ``module.name`` if there is one; else, where ``module`` is a package whose ``__init__``
+    re-exports ``name``, the module it comes from (``from sam import P`` depends on sam/params.py,
+    not on everything sam's ``__init__`` imports); else ``module``'s own file."""
+    sub = _module_file(f"{module}.{name}", roots)
+    if sub is not None:
+        return sub
+    file = _module_file(module, roots)
+    if file is None or file.name != "__init__.py":
+        return file
+    for source, source_name, bound in _import_statements(file, tuple(roots.values())):
+        if bound == name and source_name is not None and source != module:
+            return _defining_file(source, source_name, roots)
+    return file
+
+
+@lru_cache(maxsize=None)
+def _imports(path: Path, roots: tuple[Path, ...]) -> frozenset[Path]:
+    """The project files whose code ``path``'s imports bring in."""
+    by_name = {r.name: r for r in roots}
+    files = (_module_file(module, by_name) if name is None else _defining_file(module, name, by_name)
+             for module, name, _ in _import_statements(path, roots))
+    return frozenset(f for f in files if f is not None)
 
 
 def _root_of(path: Path, roots: dict[str, Path]) -> Path:
@@ -72,10 +99,9 @@ def _root_of(path: Path, roots: dict[str, Path]) -> Path:
 @lru_cache(maxsize=None)
 def import_closure(path: Path, roots: tuple[Path, ...]) -> tuple[Path, ...]:
     """``path`` and every module under ``roots`` it imports, directly or through others (sorted)."""
-    by_name = {r.name: r for r in roots}
     seen, todo = {path}, [path]
     while todo:
-        for found in _imports(todo.pop(), by_name):
+        for found in _imports(todo.pop(), roots):
             if found not in seen:
                 seen.add(found)
                 todo.append(found)

@@ -71,23 +71,27 @@ def test_the_projects_cached_kernels_are_stamped_by_what_they_import():
     # the filter's kernel is stamped by sam's step too, sam's kernels by nothing of fdi
     kernel_closure = jitcache.import_closure(Path(fdi.kernel.__file__).resolve(), roots)
     assert Path(sam.dynamics.__file__).resolve() in kernel_closure
+    # ... and not by what sam's __init__ imports beside it: editing a reader re-compiles no kernel
+    assert not {"recording.py", "scenario.py", "jitcache.py", "__init__.py"} & {f.name for f in kernel_closure}
     assert not any("fdi" in f.parts for f in jitcache.import_closure(Path(sam.simulate.__file__).resolve(), roots))
 
 
 def test_the_stamp_follows_imports_and_nothing_else(tmp_path):
     pkg = tmp_path / "pkg"
     pkg.mkdir()
-    files = {"__init__.py": "", "a.py": "from .b import B\n", "b.py": "from pkg.c import C\nB = 1\n",
-             "c.py": "C = 2\n", "d.py": "D = 3\n"}
+    files = {"__init__.py": "from .c import C as CC\nfrom .d import D\n", "a.py": "from .b import B\n",
+             "b.py": "from pkg import CC\nB = 1\n", "c.py": "C = 2\n", "d.py": "D = 3\n"}
     for name, text in files.items():
         (pkg / name).write_text(text)
     roots = (pkg.resolve(),)
 
     def stamp():
-        jitcache.import_closure.cache_clear()
+        for cached in (jitcache._import_statements, jitcache._imports, jitcache.import_closure):
+            cached.cache_clear()
         jitcache.source_stamp.cache_clear()
         return jitcache.source_stamp((pkg / "a.py").resolve(), roots)
 
+    # b takes C through the package's __init__: its stamp follows c.py, not all the __init__ imports
     assert [f.name for f in jitcache.import_closure((pkg / "a.py").resolve(), roots)] == ["a.py", "b.py", "c.py"]
     first = stamp()
     (pkg / "d.py").write_text("D = 4\n")

@@ -18,8 +18,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+import sam
+from sam.constants import LPM
 from samfdi.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,9 +84,29 @@ def test_the_readme_commands_run_in_order(tmp_path):
     (tmp_path / "scenarios").symlink_to(ROOT / "scenarios")
     full = os.environ.get("SAMFDI_README_FULL") == "1"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    printed = {}
     for args in readme_commands():
         run = args if full else reduced(args)
         done = subprocess.run([sys.executable, "-m", "samfdi", *run[1:]], cwd=tmp_path, env=env,
                               capture_output=True, text=True, timeout=3600)
         assert done.returncode == 0, f"{' '.join(args)} failed:\n{done.stderr[-2000:]}"
         assert "Traceback" not in done.stderr, done.stderr
+        printed[args[1]] = printed.get(args[1], "") + done.stdout
+    check_demo(tmp_path / "samfdi-demo", printed["demo"])
+
+
+def check_demo(out: Path, printed: str) -> None:
+    """What ``samfdi demo`` (no --out: a folder samfdi-demo here) writes and says, checked inside
+    the README run rather than by a second demo of its own."""
+    assert "samfdi demo: writing to samfdi-demo/" in printed and printed.rstrip().endswith("done: samfdi-demo/")
+    assert (out / "healthy_vs_leak.png").exists()
+    healthy, leak = sam.read_recording(out / "healthy.csv"), sam.read_recording(out / "extA_leak.csv")
+    assert leak.truth["true_K_extA"][-1] == pytest.approx(0.5 * LPM / np.sqrt(10e6))  # 0.5 L/min at 10 MPa
+    assert leak.truth["true_pA"][-1] < healthy.truth["true_pA"][-1]
+    # the sensitivity ranking is stated only as far as the 95 % intervals separate it (N = 512):
+    # on the default plant the BT pair is tied and the PA pair separated
+    line = next(ln for ln in printed.splitlines() if "2. sensitivity (paper_parameters" in ln)
+    assert "p_A: dp_N_BT ≈ Q_N_BT (tied within the 95 % intervals) > dp_N_PA > Q_N_PA;" in line
+    for stage, written in (("3. fault replay", "fdi_replay/diagnosis.json"), ("4. mismatch", "mismatch/report.md")):
+        assert any(ln.strip().startswith(stage) for ln in printed.splitlines()), stage
+        assert (out / written).exists(), written

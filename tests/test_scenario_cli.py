@@ -242,19 +242,3 @@ def test_cli_bad_input_is_one_line_without_traceback(tmp_path):
     assert "bad.toml" in done.stderr and "seeed" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x.csv").exists()
-
-
-def test_demo_writes_named_folder(tmp_path, capsys):
-    out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out)]) == 0
-    assert (out / "healthy_vs_leak.png").exists()
-    healthy, leak = sam.read_recording(out / "healthy.csv"), sam.read_recording(out / "extA_leak.csv")
-    assert leak.truth["true_K_extA"][-1] == pytest.approx(0.5 * LPM / np.sqrt(10e6))
-    assert leak.truth["true_pA"][-1] < healthy.truth["true_pA"][-1]
-    printed = capsys.readouterr().out
-    assert str(out) in printed
-    # the sensitivity ranking is stated only as far as the 95 % intervals separate it (N = 512):
-    # p_A's leading valve parameters were once printed as a strict order within +-0.07; on the
-    # default plant (issue 33) the BT pair is tied at N = 512 and the PA pair separated
-    line = next(ln for ln in printed.splitlines() if "2. sensitivity (paper_parameters" in ln)
-    assert "p_A: dp_N_BT ≈ Q_N_BT (tied within the 95 % intervals) > dp_N_PA > Q_N_PA;" in line
