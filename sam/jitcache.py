@@ -4,8 +4,9 @@ Numba keys a cached function by the hash of its *own* file. A kernel that calls 
 function from another file (the filter in ``fdi/kernel.py`` compiles ``sam``'s step into
 itself) would then run the old, frozen physics after ``sam/`` changed, with no error. Here a
 cached function of the project is stamped with one hash over its file and every project module
-that file imports, directly or through others (:func:`import_closure`): the jitted functions it
-calls and the constants it freezes all come from there. A change to any of them re-compiles it
+that file imports, directly or through others (:func:`import_closure`; a name a package's
+``__init__`` re-exports counts as the module defining it): the jitted functions it calls and the
+constants it freezes all come from there. A change to any of them re-compiles it
 once; a change elsewhere (a command line, a report) re-compiles nothing.
 
 Importing this module registers the locators (``sam/__init__.py`` and the other packages with
