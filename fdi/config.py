@@ -219,11 +219,14 @@ class StopRules:
     #: ``margin_m``: a light boom creeping off the stop shows the offset by that creep)
     hold_margin_m: float = 1e-4
     #: N/m: the filter's model draws the end stops as a spring-damper contact of this stiffness at
-    #: the piston (sam.EndStops, Eq. (C1)) where the plant's are rigid; 0: rigid and inelastic
-    contact_stiffness_N_per_m: float = 1e9
-    #: 1, that contact's damping ratio at the reduced mass (restitution: sam.contact.restitution);
-    #: the filter's 1 ms Euler step is stable on it while 1 ms x sqrt(k / m) < 2 x this
-    contact_damping_ratio: float = 0.25
+    #: the piston (sam.EndStops, Eq. (C1)) where the plant's are rigid, and takes the readings
+    #: beyond a stop as they are; 0: rigid and inelastic (readings beyond a stop read as the stop).
+    #: 4e9: a sink of 5 um per 20 kN, under the encoder's quantum
+    contact_stiffness_N_per_m: float = 4e9
+    #: 1, that contact's damping ratio at the reduced mass: restitution 0.21 (sam.contact.restitution),
+    #: between a machine's (0.3-0.8) and sam's own rigid stop's (0); the filter's 1 ms Euler step is
+    #: stable on it while 1 ms x sqrt(k / m) < 2 x this (0.70 with no load at the retracted stop)
+    contact_damping_ratio: float = 0.7
 
     def __post_init__(self):
         if self.learners is not None:

@@ -125,10 +125,15 @@ def test_the_rigid_default_is_the_elastic_step_s_limit_elsewhere_and_bit_for_bit
 
 
 def test_the_filter_s_1ms_euler_step_is_stable_on_a_stiff_contact():
-    """The filter's model (Eq. (22) at 1 ms) with the FDI's contact: the light boom (no load, the
-    stiffest contact seen at the piston) driven onto both stops settles there, and the
-    pressures and velocity stay bounded (forward Euler needs h omega < 2 zeta)."""
-    p = PLANT.replace(m_L=0.0, k_stop=K_STOP, zeta_stop=0.25).vector()
+    """The filter's model (Eq. (22) at 1 ms) with the FDI's contact (4e9 N/m, damping ratio 0.7):
+    the light boom (no load, the stiffest contact seen at the piston: h omega = 0.70) driven onto
+    both stops settles there, and the pressures and velocity stay bounded (forward Euler needs
+    h omega < 2 zeta)."""
+    from fdi.config import StopRules
+
+    stops = StopRules()
+    assert (stops.contact_stiffness_N_per_m, stops.contact_damping_ratio) == (4e9, 0.7)
+    p = PLANT.replace(m_L=0.0, k_stop=stops.contact_stiffness_N_per_m, zeta_stop=stops.contact_damping_ratio).vector()
     res = simulate_batch(p[None, :], STOP_TO_STOP, 1e-3, x0=initial_state(p[None, :], 0.3), scheme="euler")
     x, v, t = res["x"][0], res["v"][0], res.t
     x_end = float(sam.stroke_ends(p))
