@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 
 import sam
+from fdi.config import StopRules
 from sam import P, simulate_batch
 from sam.contact import restitution, stop_acceleration
-from sam.dynamics import D, derive, kernel_variant
+from sam.dynamics import D, derive, kernel_variant, rhs
+from sam.geometry import cos_joint_angle, torque_arm_cs
 from sam.simulate import initial_state
 
 PLANT = sam.load_plant()
@@ -39,7 +41,6 @@ def _balanced_state(p, x, v) -> np.ndarray:
 
 def _reduced_mass(p) -> float:
     """m of Eq. (20) at the retracted stop [kg]: J_tot / r^2."""
-    from sam.geometry import cos_joint_angle, torque_arm_cs
     d = np.empty(len(D))
     derive(p, d)
     c = cos_joint_angle(0.0, p[P.L_1], p[P.L_2], p[P.L_3])
@@ -88,7 +89,6 @@ def test_a_load_pressing_the_piston_on_the_stop_sinks_it_by_F_over_k():
         res = simulate_batch(p[None, :], np.zeros(2000), 1e-3, x0=s0[None, :], substeps=10, scheme="rk4")
         x_rest = res["x"][0, -1]
         # the load force at rest: what the contact's acceleration balances there
-        from sam.dynamics import rhs
         d, ds = np.empty(len(D)), np.empty(7)
         derive(p, d)
         rigid = p.copy()
@@ -129,8 +129,6 @@ def test_the_filter_s_1ms_euler_step_is_stable_on_a_stiff_contact():
     the light boom (no load, the stiffest contact seen at the piston: h omega = 0.70) driven onto
     both stops settles there, and the pressures and velocity stay bounded (forward Euler needs
     h omega < 2 zeta)."""
-    from fdi.config import StopRules
-
     stops = StopRules()
     assert (stops.contact_stiffness_N_per_m, stops.contact_damping_ratio) == (4e9, 0.7)
     p = PLANT.replace(m_L=0.0, k_stop=stops.contact_stiffness_N_per_m, zeta_stop=stops.contact_damping_ratio).vector()
