@@ -241,7 +241,7 @@ _GROUP_TYPES = {
     "effects": Effects,
     "faults": Faults,
     "disturbances": Disturbances,
-    "equations": Equations,  # after the others: the columns before it keep their index
+    "equations": Equations,  # new groups go last: the columns before them keep their index
     "stops": EndStops,
 }
 
