@@ -44,8 +44,8 @@ import numba
 import numpy as np
 
 from fdi import (
-    POS_THETA, CalibrationStates, Constraints, FilterConfig, FilterInput, FormNoise, Sensors, UnknownInputStates,
-    run_filter,
+    POS_THETA, CalibrationStates, Constraints, FilterConfig, FilterInput, FormNoise, Sensors, StopRules,
+    UnknownInputStates, run_filter,
 )
 from sam import P, S
 from sam.dynamics import N_DERIVED, N_STATES, derive, rhs
@@ -94,8 +94,10 @@ class UnknownInputs:
 #: Q_dB), plain mean projection of the (pinned) leak states, and the 2e-5 rad encoder noise floor.
 # The model's form taken as exact (no FormNoise): the route exists to find where it errs, and
 # pressure noise at the null band's edge would let the pressures absorb the very flows it estimates.
+# The plant's own end stops (rigid unless its file says otherwise), not the FDI's contact.
 ROUTE_FILTER = dict(calibration=CalibrationStates(states=()), constraints=Constraints(projection="leak"),
-                    sensors=Sensors(theta_noise_floor=2e-5), form_noise=FormNoise(band_share=0.0, low_share=0.0))
+                    sensors=Sensors(theta_noise_floor=2e-5), form_noise=FormNoise(band_share=0.0, low_share=0.0),
+                    stops=StopRules(contact_stiffness_N_per_m=0.0))
 
 
 def filter_config(base: FilterConfig | None = None) -> FilterConfig:

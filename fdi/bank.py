@@ -21,7 +21,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .config import CalibrationStates, Constraints, FilterConfig, Guards, FormNoise, Sensors, UnknownInputStates
+from .config import (
+    CalibrationStates, Constraints, FilterConfig, Guards, FormNoise, Sensors, StopRules, UnknownInputStates,
+)
 from .faults import BANK, FAULTS, MULTI, PARAMS, free_states
 from .filter import FilterOutput, run_filter, sample_step
 from .states import K_PER_LPM, N_AUG, N_MODEL, SCALE, STATE_NAMES
@@ -169,7 +171,15 @@ def bank_config(detect: FilterConfig, kept: tuple = ()) -> FilterConfig:
         process_noise={**detect.process_noise, **{f: 0.0 for f in FAULTS}},
         initial_sd=dict(detect.initial_sd), sigma_points=detect.sigma_points, sensors=detect.sensors,
         calibration=CalibrationStates(states=tuple(kept), walk=0.0, noise=const), unknown_inputs=UnknownInputStates(),
-        constraints=Constraints(projection="leak"), guards=Guards(nis_factor=0.0), form_noise=detect.form_noise)
+        constraints=Constraints(projection="leak"), guards=Guards(nis_factor=0.0), form_noise=detect.form_noise,
+        stops=same_contact(StopRules(), detect.stops))
+
+
+def same_contact(stops: StopRules, detect: StopRules) -> StopRules:
+    """``stops`` with the end-stop contact of the detecting filter's ``detect``: every filter of a
+    diagnosis steps the same model."""
+    return replace(stops, contact_stiffness_N_per_m=detect.contact_stiffness_N_per_m,
+                   contact_damping_ratio=detect.contact_damping_ratio)
 
 
 def _rows(inp, rows: np.ndarray, k0: int, k1: np.ndarray, L: int):
@@ -201,7 +211,7 @@ def run_reference(out: FilterOutput, rows: np.ndarray, k_end: np.ndarray, design
     sub = replace(inp, params=inp.params[rows], **seg)
     base = reference_config(design, out.config.sensors, out.config.form_noise)
     cfg = base.with_(calibration=replace(base.calibration, hold_after_s=out.config.calibration.hold_after_s),
-                     hold_band_V=out.config.hold_band_V)
+                     hold_band_V=out.config.hold_band_V, stops=same_contact(base.stops, out.config.stops))
     # the fault states are known constants here: no sigma points for them (29 instead of 37)
     held = np.zeros((len(rows), cfg.n_states), dtype=bool)
     held[:, list(FAULT_IDX)] = True

@@ -218,6 +218,15 @@ class StopRules:
     #: m: "pressed on an end stop" for ``hold_s``: 3 encoder pulses at the retracted stop (not
     #: ``margin_m``: a light boom creeping off the stop shows the offset by that creep)
     hold_margin_m: float = 1e-4
+    #: N/m: the filter's model draws the end stops as a spring-damper contact of this stiffness at
+    #: the piston (sam.EndStops, Eq. (C1)) where the plant's are rigid, and takes the readings
+    #: beyond a stop as they are; 0: rigid and inelastic (readings beyond a stop read as the stop).
+    #: 4e9: a sink of 5 um per 20 kN, under the encoder's quantum
+    contact_stiffness_N_per_m: float = 4e9
+    #: 1, that contact's damping ratio at the reduced mass: restitution 0.21 (sam.contact.restitution),
+    #: between a machine's (0.3-0.8) and sam's own rigid stop's (0); the filter's 1 ms Euler step is
+    #: stable on it while 1 ms x sqrt(k / m) < 2 x this (0.70 with no load at the retracted stop)
+    contact_damping_ratio: float = 0.7
 
     def __post_init__(self):
         if self.learners is not None:
@@ -227,6 +236,21 @@ class StopRules:
                  "must be a distance >= 0 m")
         _require(self.hold_s is None or _number(self.hold_s, 0.0, 1e9), "stops.hold_s", self.hold_s,
                  "must be a duration >= 0 s, or None")
+        _require(_number(self.contact_stiffness_N_per_m, 0.0, 1e13), "stops.contact_stiffness_N_per_m",
+                 self.contact_stiffness_N_per_m, "must be a stiffness >= 0 N/m (0: rigid stops)")
+        _require(_number(self.contact_damping_ratio, 0.0, 1.0) and self.contact_damping_ratio < 1.0,
+                 "stops.contact_damping_ratio", self.contact_damping_ratio, "must be a damping ratio in [0, 1)")
+
+    def model_params(self, params: np.ndarray) -> np.ndarray:
+        """The plant vectors ``params`` (B, len(P)) as the filter's model steps them: rows whose
+        plant has rigid stops (k_stop = 0) get this contact (a plant's own contact is kept)."""
+        if self.contact_stiffness_N_per_m == 0.0:
+            return params
+        out = np.array(params, dtype=float)
+        rigid = out[:, P.k_stop] == 0.0
+        out[rigid, P.k_stop] = self.contact_stiffness_N_per_m
+        out[rigid, P.zeta_stop] = self.contact_damping_ratio
+        return out
 
 
 @dataclass(frozen=True)

@@ -114,9 +114,10 @@ def score(rec, lab: Label, plant: Plant, thresholds: Thresholds | None, cfg: Fil
     """The chunk of a labelled recording ``rec`` (:func:`score_recording`); ``cfg``: the filter
     (default: the shipped one); ``bound``: also ``evidence``, what the data carry at the true onset
     (:func:`fdi.bound.onset_evidence`; a healthy run at an onset drawn from its length, seeded)."""
-    rec, inp, th, _, _ = prepare(rec, plant, thresholds, plant_name="the plant")
+    cfg = FilterConfig() if cfg is None else cfg
+    rec, inp, th, _, _ = prepare(rec, plant, thresholds, plant_name="the plant", stops=cfg.stops)
     check_rate(th)
-    out = run_filter(inp, own_noise(FilterConfig() if cfg is None else cfg, inp)[0])
+    out = run_filter(inp, own_noise(cfg, inp)[0])
     st = statistics(out, th)
     faulty = lab.fault is not None
     t = rec.t - rec.t[0]

@@ -223,7 +223,7 @@ def run_filter(inp: FilterInput, cfg: FilterConfig | None = None, z0: np.ndarray
         z0=c(z0[order], dtype=float), P0=c(P0[order], dtype=float),
         Qd=np.diag((q * math.sqrt(inp.dt) / scale) ** 2), Rd=measurement_variances(cfg, inp.pos_kind),
         u=c(inp.u[order], dtype=float), y=c(scaled_measurements(inp)[order]), pS=c(pS[order], dtype=float),
-        params=c(inp.params[order], dtype=float), scale=scale, param_cols=cols, param_rel=rel,
+        params=c(cfg.stops.model_params(inp.params)[order], dtype=float), scale=scale, param_cols=cols, param_rel=rel,
         pos_kind=int(inp.pos_kind), Wm=Wm[order], Wc=Wc[order], lam=lam[order], act=act[order],
         n_act=n_act[order], n_steps=steps[order], slot=np.arange(B, dtype=np.int64)[order],
         q_gate=q_gate[order], gate_group=gate_group, stop_gate=stop_gate[order], stop_learn=stop_learn,

@@ -20,7 +20,7 @@ from sam.measurement import at_ceiling
 from . import calibration
 from .bank import DESIGN, BankDesign
 from .conditions import held
-from .config import FilterConfig
+from .config import FilterConfig, StopRules
 from .diagnosis import Diagnosis, diagnose, shown_statistics
 from .faults import PARAMS
 from .figures import replay_figure
@@ -82,7 +82,8 @@ def reference_baseline(ref: Recording, plant: Plant, th: Thresholds, cfg: Filter
 
 
 def prepare(rec: Recording, plant: Plant, thresholds: Thresholds | None = None, *, drop_out_of_range: bool = False,
-            own_baseline: bool = True, plant_name: str = "plant", position_sensor: str | None = None) -> tuple:
+            own_baseline: bool = True, plant_name: str = "plant", position_sensor: str | None = None,
+            stops: StopRules = StopRules()) -> tuple:
     """A recording checked and made the filter's input, as :func:`replay` takes it: (the measured
     recording at the thresholds' rate, :class:`fdi.filter.FilterInput`, the thresholds (None: the
     shipped file of the position sensor), the position sensor, the input's health report). Every
@@ -91,7 +92,7 @@ def prepare(rec: Recording, plant: Plant, thresholds: Thresholds | None = None, 
     thresholds = Thresholds.shipped(sensor) if thresholds is None else thresholds
     rec, k = at_thresholds_rate(rec.measured(), thresholds)  # never the true_* columns
     rec, ceiling = without_saturated(rec)
-    inp, report = filter_input(rec, plant, drop_out_of_range=drop_out_of_range, position_sensor=sensor)
+    inp, report = filter_input(rec, plant, drop_out_of_range=drop_out_of_range, position_sensor=sensor, stops=stops)
     health = report.to_dict()
     if ceiling:
         health["at_range_ceiling_samples"] = ceiling
@@ -156,7 +157,7 @@ def replay(rec: Recording, plant: Plant, *, cfg: FilterConfig | None = None, thr
     cfg = FilterConfig() if cfg is None else cfg
     rec, inp, thresholds, sensor, health = prepare(rec, plant, thresholds, drop_out_of_range=drop_out_of_range,
                                                    own_baseline=baseline is None, plant_name=plant_name,
-                                                   position_sensor=position_sensor)
+                                                   position_sensor=position_sensor, stops=cfg.stops)
     # a healthy recording of the machine is held to what replay asks of any recording
     given = {"--reference": reference, "--baseline": baseline if isinstance(baseline, Recording) else None}
     given = {role: at_thresholds_rate(r, thresholds)[0] for role, r in given.items() if r is not None}

@@ -16,7 +16,7 @@ from sam import P, Plant, Recording, UserError, initial_state, simulate_batch, s
 from sam.geometry import joint_angle, piston_position
 from sam.measurement import ENCODER_RESOLUTION_RAD
 
-from .config import Sensors
+from .config import Sensors, StopRules
 from .filter import FilterInput, model_substeps
 from .states import K_PER_LPM, POS_THETA, POS_X
 from .thresholds import Thresholds
@@ -183,9 +183,11 @@ def detect_position_sensor(rec: Recording, plant: Plant, checks: InputChecks = C
 
 
 def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = False,
-                 position_sensor: str | None = None, checks: InputChecks = CHECKS) -> tuple[FilterInput, InputReport]:
+                 position_sensor: str | None = None, checks: InputChecks = CHECKS,
+                 stops: StopRules = StopRules()) -> tuple[FilterInput, InputReport]:
     """Check a (measured-only) recording and turn it into the filter's input. ``position_sensor``:
-    where its x came from (:func:`detect_position_sensor` when None)."""
+    where its x came from (:func:`detect_position_sensor` when None); ``stops``: the filter's
+    stop rules (a model with rigid stops reads positions beyond one as the stop, :func:`at_the_stops`)."""
     name = str(rec.source) if rec.source else "recording"
     if rec.n < 10:
         raise UserError(f"{name}: only {rec.n} samples; the filter needs at least 10")
@@ -221,7 +223,8 @@ def filter_input(rec: Recording, plant: Plant, *, drop_out_of_range: bool = Fals
         u[~np.isfinite(u)] = 0.0
     sensor = "encoder" if column == "theta" else position_sensor or detect_position_sensor(rec, plant, checks)
     inp = FilterInput(dt=rec.dt, u=u[None, :], pA=sig["pA"][None, :], pB=sig["pB"][None, :],
-                      pos=at_the_stops(column, sig[column], plant)[None, :],
+                      pos=(at_the_stops(column, sig[column], plant) if rigid_stops(plant, stops)
+                           else sig[column])[None, :],
                       pos_kind=POS_X if column == "x" else POS_THETA, params=plant.vector()[None, :],
                       pS=sig["pS"][None, :] if "pS" in sig else None, position_sensor=sensor)
     return inp, InputReport(samples=rec.n, dt_s=rec.dt, position=column, supply_pressure_measured="pS" in sig,
@@ -247,12 +250,19 @@ def _drop(name: str, t, column: str, a: np.ndarray, bad: np.ndarray, unit: str, 
     return int(bad.sum())
 
 
+def rigid_stops(plant: Plant, stops: StopRules) -> bool:
+    """Whether the filter's model stops the piston dead at the end stops: the plant's are rigid
+    and the filter's ``stops`` draw no contact (:meth:`fdi.config.StopRules.model_params`)."""
+    return plant.stops.k_stop == 0.0 and stops.contact_stiffness_N_per_m == 0.0
+
+
 def at_the_stops(column: str, pos: np.ndarray, plant: Plant) -> np.ndarray:
     """The position column ("x" [m] or "theta" [rad]) with readings beyond an end stop (within
-    the accepted margin) moved onto the stop. The model's stops are inelastic, so the piston
-    cannot be beyond one; a machine's stop gives under its load, and an encoder's zero is off by
-    a part of a count: such a reading held on a stop would pull every state that moves the
-    piston (docs/fdi.md, "On rig recordings")."""
+    the accepted margin) moved onto the stop, for a model whose stops are rigid and inelastic:
+    its piston cannot be beyond one, but a machine's stop gives under its load, and an encoder's
+    zero is off by a part of a count: such a reading held on a stop would pull every state that
+    moves the piston (docs/fdi.md, "On rig recordings"). A model with an elastic stop takes the
+    reading as it is: its piston enters the contact as the machine's does."""
     p = plant.vector()
     L = p[P.L_1], p[P.L_2], p[P.L_3]
     x_end = float(stroke_ends(p))

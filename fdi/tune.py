@@ -59,7 +59,7 @@ def draw_onsets(n: int, seed: int) -> np.ndarray:
 
 
 def chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, inputs: str = "standard", reference: bool = False,
-               bound: bool = False):
+               bound: bool = False, cfg: FilterConfig | None = None):
     """Filter one chunk; per run and hypothesis: first alarm index (-1: none) and the
     maxima of g/h before the run's onset, within 1 s after it, and over the run; per run
     the onset index ``k_onset`` and, in a leak's runs, ``leak_flow_lpm``: the flow the leak
@@ -68,12 +68,12 @@ def chunk_job(plant: Plant, th: Thresholds, fault, size, n, seed, inputs: str = 
     (:func:`fdi.montecarlo.make_reference_batch`, :mod:`fdi.calibration`), as ``fdi replay
     --reference`` does. ``bound``: also the evidence
     of :func:`fdi.bound.onset_evidence` per run (healthy runs: at the onsets a fault run of
-    the chunk would have)."""
+    the chunk would have). ``cfg``: the filter (default: the shipped one)."""
     onset = TUNE.onset_range_s[0] if fault is None else draw_onsets(n, seed)
     sensor = th.derived.position_sensor
     runs = make_batch(plant, n, seed, fault=fault, size=size, duration=run_seconds(th, fault), onset=onset,
                       position_sensor=sensor, inputs=inputs)
-    inp, cfg = runs.inp, FilterConfig()
+    inp, cfg = runs.inp, FilterConfig() if cfg is None else cfg
     if reference:
         ref = make_reference_batch(plant, runs.truth["params"], seed, duration=TUNE.reference_s, position_sensor=sensor)
         inp, cfg = calibration.apply(inp, cfg, calibration.learn(run_filter(ref.inp, cfg), cfg))

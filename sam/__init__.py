@@ -28,7 +28,7 @@ from .constants import DT_DEFAULT, LEAK_REFERENCE_DP, LPM
 from .dynamics import D, N_SCRATCH, N_STATES, SCHEMES, S, Scheme, derive, euler_step, rhs, step, stroke_ends
 from .errors import UserError
 from .params import (
-    P, PARAM_NAMES, Boom, Cylinder, Disturbances, Effects, Faults, Fluid, Friction, Plant,
+    P, PARAM_NAMES, Boom, Cylinder, Disturbances, Effects, EndStops, Faults, Fluid, Friction, Plant,
     Supply, Uncertain, Valve,
 )
 from .plant import default_plant_path, load_plant
@@ -43,7 +43,7 @@ __all__ = [
     "euler_step", "step",
     "rhs", "step_batch", "step_batch_inplace", "block_lane", "derived_parts", "lane_blocks", "step_blocks",
     "stroke_ends", "UserError", "P", "PARAM_NAMES", "Boom", "Cylinder", "Disturbances",
-    "Effects", "Faults", "Fluid", "Friction", "Plant", "Supply", "Uncertain", "Valve", "default_plant_path",
+    "Effects", "EndStops", "Faults", "Fluid", "Friction", "Plant", "Supply", "Uncertain", "Valve", "default_plant_path",
     "load_plant", "Recording", "RecordingError", "read_recording", "white_noise_std", "write_recording",
     "BatchResult", "initial_state", "simulate_batch", "Scenario", "load_scenario", "run_scenario",
 ]

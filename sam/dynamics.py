@@ -27,6 +27,7 @@ import numba
 import numpy as np
 
 from .constants import P_CAVITATION
+from .contact import stop_acceleration, stop_travel_velocity
 from .friction import bristle_damping, bristle_rate, lugre_force, seal_loaded, seal_pressure_rise, stribeck
 from .geometry import (
     cos_joint_angle, load_torque_cs, quarter_turn_cos_sin, stroke_end, torque_arm_cs, torque_arm_slope_cs,
@@ -177,8 +178,9 @@ def rates(y, u, p, d, j, leaks=True, effects=True, f=np.float64):
     through the hydraulics and friction functions; Eq. (7)'s R-dot term where the plant's
     ``[equations]`` keep it. ``leaks=False`` promises K_int = K_extA = K_extB = K_bypass = 0 and
     ``effects=False`` lap >= 0, R_supply = 0, Q_sat = x_open = Q_pump = inf, air_fraction = 0, no seal terms
-    k_fric_dp, k_fric_rod and no R-dot term (:func:`kernel_variant`): the same numbers without the arithmetic that
-    would give zeros. ``f`` is the float type of the arithmetic.
+    k_fric_dp, k_fric_rod, no R-dot term and rigid end stops, k_stop = 0 (:func:`kernel_variant`): the same
+    numbers without the arithmetic that would give zeros; an elastic stop pushes by Eq. (C1)
+    (:mod:`sam.contact`). ``f`` is the float type of the arithmetic.
     """
     p_A, p_B, x_s, dx_s, x, v, z = y
     A_A, A_B = d[D.A_A, j], d[D.A_B, j]
@@ -241,6 +243,9 @@ def rates(y, u, p, d, j, leaks=True, effects=True, f=np.float64):
         # Eq. (7)'s R-dot term, which Eq. (19) neglects: v = r omega, so dv/dt = r omega' + r'(theta) omega^2
         arm_rate = torque_arm_slope_cs(x, cos_theta, r, L_1, L_2, L_3) * v * v * inv_r * inv_r
         dv = where(p[P.arm_rate_torque, j] != f(0.0), dv + arm_rate, dv)
+        # an elastic end stop, Eq. (C1) (sam.contact); k_stop = 0: the rigid stop of _advance
+        contact = stop_acceleration(x, v, d[D.x_end, j], p[P.k_stop, j], p[P.zeta_stop, j], inv_m_red, f)
+        dv = where(p[P.k_stop, j] > f(0.0), dv + contact, dv)
     return (Q_netA * c_A, Q_netB * c_B, dx_s, ddx_s, v, dv, dz), c_A, c_B, G_A, G_B, G_AB
 
 
@@ -251,18 +256,6 @@ def rhs(s, u, p, d, ds):
     dy = rates((s[0], s[1], s[2], s[3], s[4], s[5], s[6]), u, _column(p), _column(d), 0)[0]
     for i in range(N_STATES):
         ds[i] = dy[i]
-
-
-@jit
-def stop_travel_velocity(x, v, dt, x_end, f=np.float64):
-    """The mean velocity [m/s] of a step of dt [s] from x [m] at v [m/s] that an end stop cuts
-    short: the travel to the stop over dt, 0 from on (or beyond) it, v where the step does not
-    reach it. The displacement flows A v of Eqs. (8)-(9) must use it, not v: the stop is rigid
-    and inelastic, so a chamber is compressed only by the distance the piston really moves."""
-    retracts = (v < f(0.0)) & (x + dt * v < f(0.0))
-    extends = (v > f(0.0)) & (x + dt * v > x_end)
-    travel = where(retracts, -max(x, f(0.0)), max(x_end - x, f(0.0)))
-    return where(retracts | extends, quot(travel, dt), v)
 
 
 @jit
@@ -306,17 +299,18 @@ def _stiff_shares(dt, c_A, c_B, G_A, G_B, G_AB, leaks=True, f=np.float64):
 
 
 @jit_inline
-def _advance(y, dy, h, c_A, c_B, G_A, G_B, G_AB, A_A, A_B, x_end, leaks=True, f=np.float64):
+def _advance(y, dy, h, c_A, c_B, G_A, G_B, G_AB, A_A, A_B, x_end, rigid, leaks=True, f=np.float64):
     """Eq. (22)'s update of ``y`` by ``h dy`` (7-tuples), from the rates :func:`rates` returned at
     ``y`` (and the capacitances and conductances with them): the pressures semi-implicit where a
-    path is stiff, the end stops and the cavitation floor applied. Returns (new y, flags).
+    path is stiff, the end stops (where ``rigid``; an elastic stop acts through :func:`rates`) and
+    the cavitation floor applied. Returns (new y, flags).
 
     ``dy[4]`` is the velocity the piston moves at over the step (``y[5]`` for forward Euler; the
     new velocity for the semi-implicit scheme): the displacement flows of Eqs. (8)-(9), which
     :func:`rates` wrote with ``y[5]``, are corrected to the travel it makes (by 0 where it
     reaches no stop)."""
     p_A, p_B, x_s, dx_s, x, v, z = y
-    v_disp = stop_travel_velocity(x, dy[4], h, x_end, f)
+    v_disp = where(rigid, stop_travel_velocity(x, dy[4], h, x_end, f), dy[4])
     r_A = dy[0] + c_A * A_A * (v - v_disp)
     r_B = dy[1] - c_B * A_B * (v - v_disp)
     # the stiff share of each path (0 where forward Euler cannot overshoot: then this is Euler's)
@@ -326,7 +320,7 @@ def _advance(y, dy, h, c_A, c_B, G_A, G_B, G_AB, A_A, A_B, x_end, leaks=True, f=
     x, v = x + h * dy[4], v + h * dy[5]
     zero, floor = f(0.0), f(P_CAVITATION)
     cavitates = (p_A < floor) | (p_B < floor)
-    on_retracted, on_extended = x <= zero, (x > zero) & (x >= x_end)
+    on_retracted, on_extended = rigid & (x <= zero), rigid & (x > zero) & (x >= x_end)
     into_stop = (on_retracted & (v < zero)) | (on_extended & (v > zero))
     y = (where(p_A < floor, floor, p_A), where(p_B < floor, floor, p_B), x_s + h * dy[2], dx_s + h * dy[3],
          where(on_retracted, zero, where(on_extended, x_end, x)), where(into_stop, zero, v), z + h * dy[6])
@@ -359,7 +353,8 @@ def first_order_step(y, u, p, d, j, h, semi_implicit, leaks=True, effects=True, 
     dy, c_A, c_B, G_A, G_B, G_AB = rates(y, u, p, d, j, leaks, effects, f)
     moving = (dy[0], dy[1], where(semi_implicit, y[3] + h * dy[3], dy[2]), dy[3],
               where(semi_implicit, y[5] + h * dy[5], dy[4]), dy[5], dy[6])
-    return _advance(y, moving, h, c_A, c_B, G_A, G_B, G_AB, d[D.A_A, j], d[D.A_B, j], d[D.x_end, j], leaks, f)
+    return _advance(y, moving, h, c_A, c_B, G_A, G_B, G_AB, d[D.A_A, j], d[D.A_B, j], d[D.x_end, j],
+                    _rigid(p, j, effects, f), leaks, f)
 
 
 @jit_inline
@@ -369,7 +364,8 @@ def heun_step(y, u, p, d, j, h, leaks=True, effects=True, f=np.float64):
     k1, c_A, c_B, G_A, G_B, G_AB = rates(y, u, p, d, j, leaks, effects, f)
     k2 = rates(_along(y, h, k1), u, p, d, j, leaks, effects, f)[0]
     new = _along(y, f(0.5) * h, _sum(k1, k2))
-    return _rough(y, new, k1, h, c_A, c_B, G_A, G_B, G_AB, d[D.A_A, j], d[D.A_B, j], d[D.x_end, j], leaks, f)
+    return _rough(y, new, k1, h, c_A, c_B, G_A, G_B, G_AB, d[D.A_A, j], d[D.A_B, j], d[D.x_end, j],
+                  _rigid(p, j, effects, f), leaks, f)
 
 
 @jit_inline
@@ -381,22 +377,29 @@ def rk4_step(y, u, p, d, j, h, leaks=True, effects=True, f=np.float64):
     k3 = rates(_along(y, f(0.5) * h, k2), u, p, d, j, leaks, effects, f)[0]
     k4 = rates(_along(y, f(1.0) * h, k3), u, p, d, j, leaks, effects, f)[0]
     new = _along(y, h / f(6.0), _sum(_sum(_sum(k1, _times(f(2.0), k2)), _times(f(2.0), k3)), k4))
-    return _rough(y, new, k1, h, c_A, c_B, G_A, G_B, G_AB, d[D.A_A, j], d[D.A_B, j], d[D.x_end, j], leaks, f)
+    return _rough(y, new, k1, h, c_A, c_B, G_A, G_B, G_AB, d[D.A_A, j], d[D.A_B, j], d[D.x_end, j],
+                  _rigid(p, j, effects, f), leaks, f)
 
 
 @jit_inline
-def _rough(y, new, k1, h, c_A, c_B, G_A, G_B, G_AB, A_A, A_B, x_end, leaks, f):
+def _rough(y, new, k1, h, c_A, c_B, G_A, G_B, G_AB, A_A, A_B, x_end, rigid, leaks, f):
     """The Runge-Kutta sub-step ``new`` from ``y`` (first stage's rates ``k1``, with the
     capacitances and conductances :func:`rates` returned with them), or forward Euler's where a
     path is stiff at the sub-step, where the sub-step reaches an end stop, or where ``new`` would
     leave the stroke or fall below the cavitation floor: the rails and the stops are where the
     solution is not smooth and a higher order buys nothing. Returns (new y, flags)."""
-    euler, flags = _advance(y, k1, h, c_A, c_B, G_A, G_B, G_AB, A_A, A_B, x_end, leaks, f)
+    euler, flags = _advance(y, k1, h, c_A, c_B, G_A, G_B, G_AB, A_A, A_B, x_end, rigid, leaks, f)
     a, b, g = _stiff_shares(h, c_A, c_B, G_A, G_B, G_AB, leaks, f)
     zero, floor = f(0.0), f(P_CAVITATION)
     rough = ((a > zero) | (b > zero) | (g > zero) | (stop_travel_velocity(y[4], y[5], h, x_end, f) != y[5])
              | (new[0] < floor) | (new[1] < floor) | (new[4] < zero) | (new[4] > x_end))
     return _choose(rough, euler, new), where(rough, flags, np.int64(0))
+
+
+@jit_inline
+def _rigid(p, j, effects, f):
+    """Whether lane j's end stops are rigid (k_stop = 0; always without the ``effects`` variant)."""
+    return (not effects) or p[P.k_stop, j] == f(0.0)
 
 
 @jit
@@ -577,8 +580,8 @@ def euler_step(s, u, p, d, dt, ds):
     * pressures are clamped at the cavitation floor :data:`P_CAVITATION`
       (flagged with :data:`FLAG_CAVITATION`, since Eqs. (8)-(9) no longer hold);
     * the piston stops at its end stops, x in [0, stroke_end(p)], its velocity into the stop
-      zeroed (an inelastic stop); a step that reaches a stop compresses the chambers only by the
-      travel to it (:func:`stop_travel_velocity`), so volume is conserved there too.
+      zeroed (a rigid, inelastic stop; with k_stop > 0 the contact of :mod:`sam.contact` instead); a
+      step that reaches a stop compresses the chambers only by the travel to it (:func:`stop_travel_velocity`), so volume is conserved there too.
 
     Returns the flag word (0 when nothing was clamped but the end stops).
     """

@@ -126,6 +126,19 @@ class Equations:
 
 
 @dataclass(frozen=True)
+class EndStops:
+    """The piston's end stops (x = 0 and the extension stop): a model setting with a machine's values.
+    By default (k_stop = 0) rigid and inelastic, as the paper's model has them: the step stops the
+    piston dead there. With k_stop > 0 a spring-damper contact, Eq. (C1) of :mod:`sam.contact`,
+    which gives and rebounds as a real stop does (docs/model.md, "End stops")."""
+
+    k_stop: float = 0.0  #: N/m, the contact's stiffness seen at the piston; 0: rigid and inelastic
+    #: 1, the contact's damping ratio at the reduced mass of Eq. (20), c = 2 zeta sqrt(k m); it sets
+    #: the restitution (:func:`sam.contact.restitution`): 0 rebounds at the impact speed
+    zeta_stop: float = 0.0
+
+
+@dataclass(frozen=True)
 class Faults:
     """Turbulent fault leakages, Eqs. (41)-(43). The spool offset is in :class:`Valve`."""
 
@@ -192,6 +205,7 @@ class Plant:
     boom: Boom
     effects: Effects = field(default_factory=Effects)
     equations: Equations = field(default_factory=Equations)
+    stops: EndStops = field(default_factory=EndStops)
     uncertain: Uncertain = field(default_factory=Uncertain)
 
     def replace(self, **values: float) -> "Plant":
@@ -227,7 +241,8 @@ _GROUP_TYPES = {
     "effects": Effects,
     "faults": Faults,
     "disturbances": Disturbances,
-    "equations": Equations,  # last: the columns before it keep their index
+    "equations": Equations,  # new groups go last: the columns before them keep their index
+    "stops": EndStops,
 }
 
 #: Flat parameter name -> its group ("valve", "boom", ...).

@@ -2,7 +2,7 @@
 
 A plant file has one table per parameter group (``[valve]``, ``[supply]``,
 ``[cylinder]``, ``[fluid]``, ``[friction]``, ``[boom]``, optionally
-``[effects]`` and ``[equations]``), with SI values under the field names of :mod:`sam.params`,
+``[effects]``, ``[equations]`` and ``[stops]``), with SI values under the field names of :mod:`sam.params`,
 and optionally ``[uncertain]``: the parameters the owner does not know exactly, each with its range
 ``name = [low, high]`` (:class:`sam.params.Uncertain`).
 A user's file needs only the keys it changes: everything else comes from the
@@ -21,12 +21,13 @@ from typing import Any
 
 from .errors import UserError, did_you_mean, where
 from .params import (
-    PARAM_NAMES, Boom, Cylinder, Effects, Equations, Fluid, Friction, Plant, Supply, Uncertain, Valve,
+    PARAM_NAMES, Boom, Cylinder, Effects, EndStops, Equations, Fluid, Friction, Plant, Supply, Uncertain, Valve,
 )
 
 _GROUPS = {
     "valve": Valve, "supply": Supply, "cylinder": Cylinder, "fluid": Fluid,
     "friction": Friction, "boom": Boom, "effects": Effects, "equations": Equations,
+    "stops": EndStops,
 }
 
 #: Parameters that must be strictly positive (areas, volumes, masses, lengths, gains...).
@@ -40,6 +41,7 @@ _POSITIVE = {
 _NON_NEGATIVE = {
     "K_leak_PA", "K_leak_AT", "K_leak_PB", "K_leak_BT", "b", "r_B", "m_L", "m_R",
     "air_fraction", "R_supply", "K_bypass", "C_hose", "k_fric_p", "k_fric_dp", "k_fric_rod",
+    "k_stop", "zeta_stop",
 }
 #: Limits whose neutral value is inf (no limit): the only parameters a plant file may give as inf.
 _UNLIMITED = {"Q_sat", "x_open", "Q_pump"}
@@ -80,7 +82,7 @@ def read_toml(path: str | Path) -> dict[str, Any]:
 
 #: keys that only one kind of project file has: how a file given to the wrong command is recognised
 FILE_KINDS = {
-    "a plant file": frozenset(_GROUPS) - {"effects", "equations"},
+    "a plant file": frozenset(_GROUPS) - {"effects", "equations", "stops"},
     "a scenario file": frozenset({"duration_s", "dt_s", "output_dt_s", "input", "load", "faults", "sensors",
                                   "initial", "plant_overrides"}),
     "a GSA study file": frozenset({"parameters", "model", "N", "simulation", "n_bootstrap"}),

