@@ -54,6 +54,12 @@ def score(case: Case, report) -> dict:
         "design": report.design.excitation.name if report.design else "",
         "floor_held": report.floor.pooled if report.floor else None,
         "generic": (report.generic or {}).get("equation", "") if report.verdict == "unknown_effect" else "",
+        # the generic route's best term whatever the verdict, and the library form it maps to
+        "generic_term": (report.generic or {}).get("equation", ""),
+        "generic_effect": (report.generic or {}).get("library_effect"),
+        "generic_significant": bool((report.generic or {}).get("significant_but_library",
+                                                              (report.generic or {}).get("significant"))),
+        "via_generic": any("through the generic route" in w for w in report.warnings),
         "held_nominal": ft["nominal"]["held"]["mean"], "held_calibrated": ft["calibrated"]["held"]["mean"],
         "held_final": ft[final]["held"]["mean"], "time_s": report.timings["total_s"],
         "ceiling_held": report.shortfall.get("ceiling_held", {}).get("mean"), "excess": report.shortfall.get("excess"),

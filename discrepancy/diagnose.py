@@ -390,7 +390,7 @@ def _fit_hypothesis(split: Split, cal: FitResult, calib, hyps: list[Hypothesis],
     free = tuple(calib) + tuple(f for h in hyps for f in h.params)
     model = Model(cal.params, free, cal.meas)
     base_vals = dict(cal.values)
-    starts = []
+    starts, families = [], None
     if start_from:
         merged = dict(base_vals)
         for r in start_from:
@@ -402,14 +402,20 @@ def _fit_hypothesis(split: Split, cal: FitResult, calib, hyps: list[Hypothesis],
                 starts.append(model.theta_of({**merged, **s}))
     else:
         # from the calibrated values, and from the commissioning start: the calibration may have absorbed
-        # part of the effect (a lower notch flow for a flow limit), which the effect's fit must be free to undo
+        # part of the effect (a lower notch flow for a flow limit), which the effect's fit must be free to undo.
+        # The best start of each family of the hypothesis' starts is optimised (fitting.fit)
+        families = []
         for h in hyps:
-            for s in h.starts:
-                starts.append(model.theta_of({**base_vals, **s}))
-                if restart:
-                    starts.append(model.theta_of({**restart, **s}))
+            for family in h.families:
+                first = len(starts)
+                for s in family:
+                    starts.append(model.theta_of({**base_vals, **s}))
+                    if restart:
+                        starts.append(model.theta_of({**restart, **s}))
+                families.append(list(range(first, len(starts))))
     st = gate.settings
-    res = fit_by_segment(split, model, starts, st.hypothesis_nfev, st.segment_rounds, st.segment_round_nfev)
+    res = fit_by_segment(split, model, starts, st.hypothesis_nfev, st.segment_rounds, st.segment_round_nfev,
+                         families)
     return _judge(split, hyps, res, reference, n_eff, signature, gate, second)
 
 

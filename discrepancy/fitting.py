@@ -176,14 +176,20 @@ def segment_scales(split: Split, model: Model, theta: np.ndarray) -> dict[str, n
     return out
 
 
-def fit(sim: Split, model: Model, starts: list[np.ndarray], max_nfev: int = 40) -> FitResult:
-    """Least-squares fit from the best of several starts (evaluated as one batch)."""
+def fit(sim: Split, model: Model, starts: list[np.ndarray], max_nfev: int = 40,
+        families: list[list[int]] | None = None) -> FitResult:
+    """Least-squares fit from the best of several starts (evaluated as one batch).
+
+    ``families`` (optional): the starts' indices grouped into families (forms of the effect between
+    which one optimiser run cannot move); the best start of each is optimised and the lowest squared
+    error wins. None: one family, one optimiser run."""
     lo = np.array([f.theta_bounds[0] for f in model.free])
     hi = np.array([f.theta_bounds[1] for f in model.free])
     starts = np.clip(np.atleast_2d(np.array(starts)), lo, hi)
     r0 = evaluate(sim, model, starts)
     costs = np.sum(r0 ** 2, axis=1)
-    x0 = starts[int(np.argmin(costs))]
+    if not starts.shape[1]:
+        return at(sim, model, starts[0], 1)
     cache: dict = {}
 
     def fun(th):
@@ -204,17 +210,18 @@ def fit(sim: Split, model: Model, starts: list[np.ndarray], max_nfev: int = 40) 
             r_base, r = rr[0], rr[1:]
         return ((r - r_base[None, :]) / steps[:, None]).T
 
-    if len(x0):
+    best, nfev = None, 0
+    for family in families or [range(len(starts))]:
+        x0 = starts[min(family, key=lambda i: costs[i])]
         # trf takes the SVD of J (about 10^4 x 10) at each step: threaded BLAS splits so thin a matrix
         # badly (measured 4.9 ms on one thread, 91 ms on two with the cores busy, same result)
         with threadpool_limits(limits=1, user_api="blas"):
             res = least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", max_nfev=max_nfev,
                                 x_scale=1.0, diff_step=None)
-        th = res.x
-        nfev = res.nfev
-    else:
-        th, nfev = x0, 1
-    return at(sim, model, th, nfev)
+        nfev += res.nfev
+        if best is None or res.cost < best.cost:
+            best = res
+    return at(sim, model, best.x, nfev)
 
 
 def at(split: Split, model: Model, theta: np.ndarray, nfev: int = 0) -> FitResult:
@@ -241,7 +248,7 @@ def unweighted(split: Split, res: FitResult) -> FitResult:
 
 
 def fit_by_segment(split: Split, model: Model, starts: list[np.ndarray], max_nfev: int, rounds: int,
-                   round_nfev: int) -> FitResult:
+                   round_nfev: int, families: list[list[int]] | None = None) -> FitResult:
     """Least squares with one residual variance per segment, by iterative reweighting.
 
     A pooled least-squares fit is steered by the segments with the largest error, and a segment's
@@ -252,9 +259,10 @@ def fit_by_segment(split: Split, model: Model, starts: list[np.ndarray], max_nfe
     re-estimates every segment's residual scale from the current fit (:func:`segment_scales`, the
     noise model the acceptance judges with) and fits again from there, ``round_nfev`` evaluations at
     most. An already weighted ``split`` (the second round's) is fitted as given. The squared errors
-    of the result are unweighted.
+    of the result are unweighted. ``families``: as for :func:`fit` (the first fit only; the rounds
+    refine its winner).
     """
-    res = fit(split, model, starts, max_nfev=max_nfev)
+    res = fit(split, model, starts, max_nfev=max_nfev, families=families)
     if split.seg_sigma is not None or not len(model.free):
         return res
     for _ in range(rounds):

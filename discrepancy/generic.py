@@ -82,6 +82,8 @@ def features_at(pA, pB, v, x, xs, p_S: float) -> dict[str, tuple[np.ndarray, str
         "x_s": (xs, "1"),
         "|x_s|": (np.abs(xs), "1"),
         "(p_A + p_B) sgn v": ((pA + pB) * sgn_v, "Pa"),
+        "|p_A - p_B| sgn v": (np.abs(dp) * sgn_v, "Pa"),
+        "p_B sgn v": (pB * sgn_v, "Pa"),
         "x_s sqrt|p_A - p_B|": (xs * np.sqrt(np.abs(dp)), "Pa^0.5"),
     }
 
@@ -105,7 +107,8 @@ _FORMS = [
     ({("Q_dA", "p_A")}, "laminar external leakage out of chamber A: not an effect of the library", None),
     ({("Q_dB", "p_B")}, "laminar external leakage out of chamber B: not an effect of the library", None),
     ({("F_d", "sgn v"), ("F_d", "|v|"), ("F_d", "v")}, "a friction change (library: friction_level)", "friction_level"),
-    ({("F_d", "(p_A + p_B) sgn v")}, "pressure-dependent seal friction (library: pressure_friction)", "pressure_friction"),
+    ({("F_d", "(p_A + p_B) sgn v"), ("F_d", "|p_A - p_B| sgn v"), ("F_d", "p_B sgn v")},
+     "pressure-dependent seal friction (library: pressure_friction)", "pressure_friction"),
     ({("F_d", "1"), ("F_d", "x")}, "a load force error (library: load_mass)", "load_mass"),
 ]
 
@@ -167,12 +170,17 @@ def _term_model(final: FitResult, calib, terms, coefs, units, p_S: float):
     return model, start
 
 
+#: Features that are forces only: the piston seal's and the rod seal's friction (the library's
+#: pressure_friction form, F_C + k_piston |p_A - p_B| + k_rod p_B), no flow into a chamber.
+FORCE_ONLY = frozenset({"|p_A - p_B| sgn v", "p_B sgn v"})
+
+
 def _candidates(feats: dict) -> list:
     """Every (unknown input, feature) term: [((target, feature), probe scale, unit)]."""
     cands = []
     for tname in TARGETS:
         for fname, (fv, funit) in feats.items():
-            if tname != "F_d" and fname == "1":
+            if tname != "F_d" and (fname == "1" or fname in FORCE_ONLY):
                 # a flow into a chamber that does not depend on any state is not a physical term: a leak
                 # vanishes with its pressure drop, and a constant valve flow is the spool offset, calibrated
                 continue

@@ -59,10 +59,17 @@ class Hypothesis:
     params: tuple[Free, ...]
     description: str
     shows: str  # the signature: where it shows in the data
-    starts: tuple[dict[str, float], ...] = field(default_factory=tuple)  # grid of starting values
+    #: starting values, grouped into families: the forms of the effect that one optimiser run cannot
+    #: move between (a pump behind a relief against the plain droop); each family's best start is optimised
+    families: tuple[tuple[dict[str, float], ...], ...] = field(default_factory=tuple)
     probe: dict[str, float] = field(default_factory=dict)  # a small realistic magnitude for the signature
     nominal: dict[str, float] = field(default_factory=dict)  # the plant's value, for effects that change one
     alike: str = ""  # other physics with the same signature, that the data cannot tell apart from this one
+
+    @property
+    def starts(self) -> tuple[dict[str, float], ...]:
+        """Every starting value, family after family."""
+        return tuple(s for family in self.families for s in family)
 
     def summary(self, values: dict[str, float]) -> str:
         parts = []
@@ -119,7 +126,7 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             "Free air in the oil makes the fluid soft at low pressure: the effective bulk modulus falls "
             "steeply below a few MPa.",
             "pressure transients lag and ring less at low chamber pressure; worse in the low-pressure chamber",
-            starts=tuple({"air_fraction": a} for a in (1e-4, 1e-3, 5e-3, 2e-2)),
+            families=(tuple({"air_fraction": a} for a in (1e-4, 1e-3, 5e-3, 2e-2)),),
             probe={"air_fraction": 2e-3},
             alike="any compliance that falls with pressure, e.g. a hose that stiffens as it is pressurised; "
                   "the library's hose term is pressure-independent, so such a hose is named entrained air",
@@ -129,7 +136,7 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             (Free("C_hose", 1e-15, 1e-10, True, "m^3/Pa", "hose compliance per chamber"),),
             "Flexible hoses add a capacitance to each chamber that does not scale with the chamber volume.",
             "slower pressure build-up in every transient, most where the chamber volume is small (near the stroke ends)",
-            starts=tuple({"C_hose": c} for c in (1e-13, 5e-13, 2e-12, 1e-11)),
+            families=(tuple({"C_hose": c} for c in (1e-13, 5e-13, 2e-12, 1e-11)),),
             probe={"C_hose": 5e-13},
         ),
         Hypothesis(
@@ -137,7 +144,7 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             (Free("lap", -0.15, 0.15, False, "", "lap (+ overlap, - underlap), fraction of travel"),),
             "A spool overlap is a deadband around null; an underlap opens all four edges a little around null.",
             "mismatch concentrated where the spool is near null and at velocity reversals",
-            starts=tuple({"lap": a} for a in (-0.04, -0.01, 0.01, 0.04)),
+            families=(tuple({"lap": a} for a in (-0.04, -0.01, 0.01, 0.04)),),
             probe={"lap": 0.02},
         ),
         Hypothesis(
@@ -148,7 +155,7 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             "(effective opening min(|x_s|, x_open) in Eqs. (10)-(12)).",
             "velocity and pressures flatten at large spool openings (high flow demand); the flow still follows "
             "the load pressure there",
-            starts=tuple({"x_open": a} for a in (0.2, 0.35, 0.5, 0.7, 0.9)),
+            families=(tuple({"x_open": a} for a in (0.2, 0.35, 0.5, 0.7, 0.9)),),
             probe={"x_open": 0.6},
             alike="a port or line restriction in series with the valve (its flow also saturates at a fixed area); "
                   "a pilot stage that caps the flow itself (sam's Q_sat) flattens the flow against the pressure drop too",
@@ -163,9 +170,10 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             "the plain linear droop.",
             "inflow-side chamber pressure falls at high flow demand; velocity capped at Q_pump over the "
             "inflow area, the cap higher retracting (annulus) than extending; the outflow side unaffected",
-            # the linear droop's starts (a pump beyond the valve's draw), then pumps the valve can outdraw
-            starts=(tuple({"Q_pump": 4.0 * Q_N, "R_supply": r} for r in (3e8, 2e9, 1e10, 5e10))
-                    + tuple({"Q_pump": Q_N * a, "R_supply": r} for a in (0.5, 0.75, 1.1) for r in (5e8, 2e9))),
+            # two families: the linear droop (a pump beyond the valve's draw, where Q_pump has no gradient),
+            # and pumps the valve can outdraw (the velocity capped)
+            families=(tuple({"Q_pump": 4.0 * Q_N, "R_supply": r} for r in (3e8, 2e9, 1e10, 5e10)),
+                      tuple({"Q_pump": Q_N * a, "R_supply": r} for a in (0.5, 0.75, 1.1) for r in (5e8, 2e9))),
             probe={"Q_pump": 0.75 * Q_N, "R_supply": 2e9},
             alike="without pS, a flow limit on the supply edges alone (a meter-in restriction, a pilot that caps "
                   "the flow) caps the velocity alike; the relief's override and a line loss have the same droop",
@@ -175,7 +183,7 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             (Free("K_bypass", 1e-15, 1e-9, True, "L/min/MPa", "bypass conductance"),),
             "Flow past the piston seal, proportional to the pressure difference.",
             "pressure difference collapses when the valve is near null; velocity drift under load",
-            starts=tuple({"K_bypass": k} for k in (1e-13, 1e-12, 5e-12, 3e-11)),
+            families=(tuple({"K_bypass": k} for k in (1e-13, 1e-12, 5e-12, 3e-11)),),
             probe={"K_bypass": 2e-12},
         ),
         Hypothesis(
@@ -186,7 +194,7 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             "with the pressure difference across the piston, the rod seal's with the rod-side pressure "
             "(F_C + k_piston |p_A - p_B| + k_rod p_B, and F_S alike).",
             "force balance off where the load pressure is high, worst at stick-slip and reversals",
-            starts=tuple({"k_fric_dp": k, "k_fric_rod": k * r} for k in (1e-5, 5e-5, 2e-4) for r in (0.1, 1.0)),
+            families=(tuple({"k_fric_dp": k, "k_fric_rod": k * r} for k in (1e-5, 5e-5, 2e-4) for r in (0.1, 1.0)),),
             probe={"k_fric_dp": 5e-5, "k_fric_rod": 2.5e-5},
         ),
         Hypothesis(
@@ -196,8 +204,8 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
              Free("b", 1.0, max(f.b, 100.0) * 20, True, "N s/m", "viscous friction")),
             "The seal friction level differs from the nominal plant.",
             "force balance off when moving (Coulomb, viscous) or at breakaway (static); reversals",
-            starts=tuple({"F_C": f.F_C * a, "F_S": f.F_S * a, "b": max(f.b, 100.0) * c}
-                         for a in (0.3, 1.0, 3.0) for c in (0.3, 1.0, 3.0)),
+            families=(tuple({"F_C": f.F_C * a, "F_S": f.F_S * a, "b": max(f.b, 100.0) * c}
+                            for a in (0.3, 1.0, 3.0) for c in (0.3, 1.0, 3.0)),),
             probe={"F_C": f.F_C * 2, "F_S": f.F_S * 2},
             nominal={"F_C": f.F_C, "F_S": f.F_S, "b": f.b},
         ),
@@ -206,7 +214,7 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             (Free("m_L", 1.0, max(m_L, 100.0) * 6, True, "kg", "load mass"),),
             "The load on the boom differs from the plant file: gravity load and inertia both change.",
             "steady load pressure (p_A A_A - p_B A_B) off everywhere, more so in acceleration",
-            starts=tuple({"m_L": max(m_L, 100.0) * a} for a in (0.3, 0.7, 1.4, 2.5)),
+            families=(tuple({"m_L": max(m_L, 100.0) * a} for a in (0.3, 0.7, 1.4, 2.5)),),
             probe={"m_L": max(m_L, 100.0) * 1.2},
             nominal={"m_L": m_L},
         ),
@@ -217,7 +225,7 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             "The boom and its load resist acceleration more (or less) than the plant file's masses at "
             "their distances say: a load with a radius of gyration of its own, attachments.",
             "pressure transients at accelerations and the hydraulic mode's frequency off, the steady load pressure right",
-            starts=tuple({"J_extra": J_B * a} for a in (-0.4, 0.5, 1.5, 4.0)),
+            families=(tuple({"J_extra": J_B * a} for a in (-0.4, 0.5, 1.5, 4.0)),),
             probe={"J_extra": 0.5 * J_B},
         ),
         Hypothesis(
@@ -225,7 +233,7 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             (Free("tau_sensor", 1e-4, 0.2, True, "ms", "transmitter time constant"),),
             "The pressure transmitters (or their filters) respond with a first-order lag.",
             "the measured pressures trail the simulation in fast transients",
-            starts=tuple({"tau_sensor": t} for t in (1e-3, 5e-3, 2e-2)),
+            families=(tuple({"tau_sensor": t} for t in (1e-3, 5e-3, 2e-2)),),
             probe={"tau_sensor": 5e-3},
             alike="any transmitter or filter dynamics; a higher-order filter lies between a lag and a delay",
         ),
@@ -235,7 +243,7 @@ def _library(plant: Plant) -> tuple[Hypothesis, ...]:
             "The measured pressures are delayed with respect to the input and the position (the "
             "transmitters' electronics, the logger).",
             "the pressures are shifted in time; largest mismatch at the fastest input changes",
-            starts=tuple({"delay_sensor": t} for t in (2e-3, 1e-2, 4e-2)),
+            families=(tuple({"delay_sensor": t} for t in (2e-3, 1e-2, 4e-2)),),
             probe={"delay_sensor": 5e-3},
             alike="a higher-order transmitter or filter lag (two cascaded lags look like a delay plus a shorter lag)",
         ),
