@@ -215,8 +215,8 @@ def fit(sim: Split, model: Model, starts: list[np.ndarray], max_nfev: int = 40,
         x0 = starts[min(family, key=lambda i: costs[i])]
         # trf takes the SVD of J (about 10^4 x 10) at each step: threaded BLAS splits so thin a matrix
         # badly (measured 4.9 ms on one thread, 91 ms on two with the cores busy, same result). A
-        # parameter without gradient (a pump the valve cannot outdraw) makes trf's trust-region algebra
-        # overflow or divide by zero on the way to a step it then rejects: the warnings would only alarm the user
+        # parameter without gradient (a pump the valve cannot outdraw) makes trf's trust-region sub-problem
+        # overflow or divide by zero, which its iteration guards against: the warnings would only alarm the user
         with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):
             res = least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", max_nfev=max_nfev,
                                 x_scale=1.0, diff_step=None)
