@@ -149,4 +149,11 @@ def register(roots: tuple[Path, ...]) -> None:
     CacheImpl._locator_classes = [*locators_for(roots), *CacheImpl._locator_classes]
 
 
+def register_folder(folder: str | Path) -> None:
+    """Stamp the cached kernels of ``folder`` (a test suite, a user's scripts) by what they import
+    from it and from the project's packages: a kernel there that calls sam's step or freezes its
+    constants (the parameter vector's length) is re-compiled when they change."""
+    register((Path(folder), *(_PROJECT / name for name in PACKAGES)))
+
+
 register(tuple(_PROJECT / name for name in PACKAGES))

@@ -98,3 +98,16 @@ def test_the_stamp_follows_imports_and_nothing_else(tmp_path):
     assert stamp() == first  # not imported by a: no re-compile
     (pkg / "c.py").write_text("C = 5\n")
     assert stamp() != first  # imported through b
+
+
+def test_the_tests_own_kernels_are_stamped_by_sam_too():
+    """A kernel compiled in a test file (test_model_step's Eq. (22) loop freezes the parameter
+    vector's length) is re-compiled when sam changes, not only when its own file does."""
+    import test_model_step
+
+    locator = test_model_step._euler_loop._cache._impl.locator
+    assert type(locator).__name__.startswith("SourceTree")
+    own = Path(test_model_step.__file__).resolve()
+    closure = jitcache.import_closure(own, locator.roots)
+    assert Path(sam.dynamics.__file__).resolve() in closure
+    assert locator.get_source_stamp() == jitcache.source_stamp(own, locator.roots)
