@@ -97,7 +97,7 @@ class UnknownInputs:
 # The plant's own end stops (rigid unless its file says otherwise), not the FDI's contact.
 ROUTE_FILTER = dict(calibration=CalibrationStates(states=()), constraints=Constraints(projection="leak"),
                     sensors=Sensors(theta_noise_floor=2e-5), form_noise=FormNoise(band_share=0.0, low_share=0.0),
-                    stops=StopRules(contact_stiffness_N_per_m=0.0))
+                    stops=StopRules.rigid())
 
 
 def filter_config(base: FilterConfig | None = None) -> FilterConfig:

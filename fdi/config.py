@@ -241,6 +241,12 @@ class StopRules:
         _require(_number(self.contact_damping_ratio, 0.0, 1.0) and self.contact_damping_ratio < 1.0,
                  "stops.contact_damping_ratio", self.contact_damping_ratio, "must be a damping ratio in [0, 1)")
 
+    @classmethod
+    def rigid(cls) -> StopRules:
+        """No contact of the filter's own: the plant's stops as its file has them (rigid and
+        inelastic unless it says otherwise), as the recordings sam makes have them."""
+        return cls(contact_stiffness_N_per_m=0.0)
+
     def model_params(self, params: np.ndarray) -> np.ndarray:
         """The plant vectors ``params`` (B, len(P)) as the filter's model steps them: rows whose
         plant has rigid stops (k_stop = 0) get this contact (a plant's own contact is kept)."""

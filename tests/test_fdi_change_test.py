@@ -4,7 +4,6 @@ thresholds promise over long healthy recordings."""
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -290,7 +289,7 @@ def test_long_healthy_runs_stay_healthy():
     th = Thresholds.shipped()
     assert th.derived.run_length_s == 20.0 and th.test.memory_s is not None
     runs = make_batch(load_plant(), 30, 424242, duration=th.derived.run_length_s)
-    rigid = FilterConfig(stops=replace(StopRules(), contact_stiffness_N_per_m=0.0))
+    rigid = FilterConfig(stops=StopRules.rigid())
     for cfg, most in ((rigid, binom.isf(0.01, 30, th.derived.trigger_level)), (FilterConfig(), 9)):
         out = run_filter(runs.inp, cfg)
         st = statistics(out, th)

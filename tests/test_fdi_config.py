@@ -66,4 +66,4 @@ def test_the_filter_s_model_gets_the_contact_where_the_plant_s_stops_are_rigid()
     assert tuple(got[:, P.k_stop]) == (1e9, 3e8) and tuple(got[:, P.zeta_stop]) == (0.3, 0.1)
     assert np.array_equal(np.delete(got[0], [P.k_stop, P.zeta_stop]), np.delete(rigid, [P.k_stop, P.zeta_stop]))
     plain = np.stack([rigid])
-    assert StopRules(contact_stiffness_N_per_m=0.0).model_params(plain) is plain
+    assert StopRules.rigid().model_params(plain) is plain

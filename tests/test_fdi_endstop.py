@@ -148,7 +148,7 @@ def test_a_healthy_impact_on_the_joint_limit_is_not_read_as_a_fault(joint_limit_
     from fdi.states import I_OFFSET
 
     rec = joint_limit_impact
-    rigid = dataclasses.replace(StopRules(), contact_stiffness_N_per_m=0.0)
+    rigid = StopRules.rigid()
     _, inp, _, _, _ = prepare(rec, load_plant(), None, plant_name="the plant", stops=rigid)
     x, v = rec.truth["true_x"], rec.truth["true_v"]
     hits = np.flatnonzero((x[1:] > 0.437) & (x[:-1] <= 0.437))
@@ -182,7 +182,7 @@ def test_the_model_s_elastic_stop_follows_the_rig_s_rebounds(joint_limit_impact)
     x, v = rec.truth["true_x"], rec.truth["true_v"]
     hits = np.flatnonzero((x[1:] > 0.437) & (x[:-1] <= 0.437))
     fast = v[hits] > 0.04
-    rigid = FilterConfig(stops=dataclasses.replace(StopRules(), contact_stiffness_N_per_m=0.0))
+    rigid = FilterConfig(stops=StopRules.rigid())
     assert FilterConfig().stops.contact_stiffness_N_per_m > 0.0
     worst, lost, moved = {}, {}, {}
     for name, cfg in (("rigid", rigid), ("contact", FilterConfig())):

@@ -556,7 +556,7 @@ def test_clear_single_fault_is_not_taken_for_a_weak_pair():
     root = Path(__file__).resolve().parents[1] / "scenarios" / "faults"
     rec = run_scenario(load_scenario(root / "offset_minus5pct_cycle.toml"))
     signals = {k: v for k, v in rec.signals.items() if k != "theta"}
-    rigid = FilterConfig(stops=replace(StopRules(), contact_stiffness_N_per_m=0.0))
+    rigid = FilterConfig(stops=StopRules.rigid())
     d = replay(replace(rec, signals=signals), load_plant(), cfg=rigid, thresholds=Thresholds.shipped()).diagnosis
     assert d.status == "fault" and d.isolated == ["offset-"]
     assert d.size["offset-"]["value"] == pytest.approx(-5.0, abs=0.2)
@@ -761,7 +761,6 @@ def test_unseen_notch_flows_are_not_taken_for_a_fault():
     the load mass and the notch flows as uncertain constant states (the confirmation bank,
     BankDesign.confirm_calibrate) no fault fits better than "none", so the alarm would not stand."""
     from sam import P
-    from fdi import Thresholds
 
     nominal = load_plant().vector()
     nominal[P.m_L] = 50.0
@@ -795,7 +794,6 @@ def test_withdrawn_alarms_restart_the_tests_and_a_later_fault_is_found():
     withdrawn (each restart re-learns the baseline), the one at the onset stands, confirmed by
     the data after 6 s, and names K_extA. With confirm_nats = 0 (every
     alarm stands) the healthy run is a fault."""
-    from dataclasses import replace
 
     from fdi import Thresholds, diagnose
     from fdi.diagnosis import shown_statistics

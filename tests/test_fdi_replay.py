@@ -100,7 +100,6 @@ def test_sampling_rate_must_match_the_thresholds(leak_csv, tmp_path, capsys):
     500 Hz), so a 500 Hz recording is refused with the shipped 1 kHz thresholds and the command
     that makes thresholds for it; with thresholds for 500 Hz it is filtered with two 1 ms model
     steps per sample and the 1 L/min leak is found and sized."""
-    from dataclasses import replace
 
     from sam import read_recording
     import fdi
@@ -142,7 +141,6 @@ def test_faster_recording_is_decimated_and_odd_rates_get_a_way_out(leak_csv, tmp
 
 def test_tune_refuses_thresholds_for_another_rate(tmp_path, capsys):
     from fdi.thresholds import to_toml
-    from dataclasses import replace
     path = tmp_path / "th500.toml"
     path.write_text(to_toml(Thresholds.shipped().with_(sample_dt_s=2e-3)))
     assert main(["fdi", "tune", "--runs", "5", "--thresholds", str(path), "--out", str(tmp_path / "t")]) == 2
@@ -151,7 +149,6 @@ def test_tune_refuses_thresholds_for_another_rate(tmp_path, capsys):
 
 def test_threshold_studies_sample_like_the_logger():
     """The studies simulate at 1 ms and filter what a logger sampling every 2 ms records."""
-    from dataclasses import replace
 
     from fdi.study import StudyDesign, study_runs
     design = StudyDesign(sample_dt_s=2e-3)
@@ -546,7 +543,7 @@ def test_tune_chunk_job_random_onsets_real_runs():
     from fdi.config import StopRules
     plant, th = load_plant(), Thresholds.shipped()
     seed = 500_000 + 10_000
-    rigid = FilterConfig(stops=replace(StopRules(), contact_stiffness_N_per_m=0.0))
+    rigid = FilterConfig(stops=StopRules.rigid())
     res = tune.chunk_job(plant, th, "K_extA", 1.0, 4, seed, cfg=rigid)
     k0 = np.round(tune.draw_onsets(4, seed) / 1e-3).astype(int)
     np.testing.assert_array_equal(res["k_onset"], k0)
